@@ -1,0 +1,105 @@
+"""Small helpers that turn user input (floats, arrays or astropy Quantities) into canonical
+float arrays and raise :class:`~rotmod.errors.ParameterError` naming the parameter.
+
+Canonical units (see :mod:`rotmod.conventions`): cm, rad, keV, s.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import astropy.units as u
+import numpy as np
+
+from rotmod.errors import ParameterError
+
+__all__ = ["as_array", "as_scalar"]
+
+
+def _strip(value: Any, unit: u.UnitBase | None, name: str) -> np.ndarray:
+    if isinstance(value, u.Quantity):
+        if unit is None:
+            raise ParameterError(f"{name} must be a plain number, got a Quantity {value}")
+        try:
+            return np.asarray(value.to_value(unit), dtype=float)
+        except u.UnitConversionError as exc:
+            raise ParameterError(f"{name} must be in units of {unit}, got {value.unit}") from exc
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{name} must be numeric, got {value!r}") from exc
+
+
+def _describe(arr: np.ndarray, unit: u.UnitBase | None) -> str:
+    bad = arr.ravel()[0] if arr.size else arr
+    return f"{bad:g}{' ' + str(unit) if unit not in (None, u.dimensionless_unscaled) else ''}"
+
+
+def as_array(
+    value: Any,
+    name: str,
+    unit: u.UnitBase | None = None,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    ndim: int | None = None,
+) -> np.ndarray:
+    """Convert ``value`` to a finite float array in ``unit`` and check bounds.
+
+    Parameters
+    ----------
+    value : float, array_like or `~astropy.units.Quantity`
+        Plain numbers are taken to be in ``unit`` already.
+    name : str
+        Parameter name used in error messages.
+    unit : `~astropy.units.UnitBase`, optional
+        Canonical unit the value is converted to.
+    lo, hi : float, optional
+        Bounds (in ``unit``); ``lo_open``/``hi_open`` make them strict.
+    ndim : int, optional
+        Required number of dimensions (after ``np.atleast_1d`` when ``ndim == 1``).
+
+    Returns
+    -------
+    numpy.ndarray
+        Float array in canonical units.
+
+    Raises
+    ------
+    ParameterError
+        If the value is not numeric, not finite, has the wrong unit or breaks a bound.
+    """
+    arr = _strip(value, unit, name)
+    if ndim == 1:
+        arr = np.atleast_1d(arr)
+    if ndim is not None and arr.ndim != ndim:
+        raise ParameterError(f"{name} must be {ndim}-dimensional, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = arr[~np.isfinite(arr)]
+        raise ParameterError(f"{name} must be finite, got {_describe(bad, unit)}")
+    ustr = f" {unit}" if unit not in (None, u.dimensionless_unscaled) else ""
+    if lo is not None:
+        bad = arr <= lo if lo_open else arr < lo
+        if np.any(bad):
+            op = ">" if lo_open else ">="
+            raise ParameterError(
+                f"{name} must be {op} {lo:g}{ustr}, got {_describe(arr[bad], unit)}"
+            )
+    if hi is not None:
+        bad = arr >= hi if hi_open else arr > hi
+        if np.any(bad):
+            op = "<" if hi_open else "<="
+            raise ParameterError(
+                f"{name} must be {op} {hi:g}{ustr}, got {_describe(arr[bad], unit)}"
+            )
+    return arr
+
+
+def as_scalar(value: Any, name: str, unit: u.UnitBase | None = None, **bounds: Any) -> float:
+    """Like :func:`as_array` but requires a scalar and returns a Python float."""
+    arr = as_array(value, name, unit, **bounds)
+    if arr.ndim != 0:
+        raise ParameterError(f"{name} must be a scalar, got shape {arr.shape}")
+    return float(arr)

@@ -1,0 +1,89 @@
+"""The one place for frames, signs, angle zero points and canonical units.
+
+Every model, the Monte Carlo, the response and the reconstruction follow these rules; see
+``docs/conventions.md`` for the diagram and the derivations.
+
+Frames and units
+----------------
+* Canonical units: lengths in cm, angles in rad, energies in keV, times in s.  Public
+  functions accept `astropy.units.Quantity` and strip units at the boundary.
+* Lab frame: right-handed, ``z`` up toward the sky, origin on the rotation axis in the
+  detector plane ``z = 0``.  Detector faces are discs in ``z = 0``.
+* The mask slab occupies ``L <= z <= L + h``.
+
+Mask angle
+----------
+* At mask angle ``xi = 0`` the slats are parallel to the lab ``y`` axis and the rotation
+  axis runs through the middle of a gap.
+* The mask turns clockwise seen from +z.  The coordinate perpendicular to the slats of a lab
+  point at polar ``(r, psi)`` (the mask-frame coordinate ``u``) is
+  ``u = r cos(psi + xi) = x cos(xi) - y sin(xi)`` (the paper's ``x(t)``).
+* In the mask frame the gaps are ``|u - k p| < b/2`` and the slats are
+  ``b/2 + k p <= u <= b/2 + a + k p`` for every integer ``k``, with period ``p = a + b``.
+
+Sources and photons
+-------------------
+* A point source at zenith ``theta`` and azimuth ``phi`` lies in the direction
+  ``(sin theta cos phi, sin theta sin phi, cos theta)`` seen from the instrument; its photons
+  travel along the opposite direction.
+* A photon that reaches the detector plane at ``(x, y)`` crossed the mask bottom (z = L) at
+  ``(x + L tan theta cos phi, y + L tan theta sin phi)`` and the mask top (z = L + h) at the
+  same point plus ``h tan theta (cos phi, sin phi)``.  Its mask-frame coordinate therefore
+  grows by ``s = h tan(theta) cos(xi + phi)`` from the bottom to the top face.
+
+Profiles
+--------
+A profile value is the fraction of the photons that would reach a detector face with no
+mask that reach it unattenuated (0 to 1; photopeak only, no scattering).  Count rates are
+that fraction times the unobstructed rate.  Profile arrays are laid out ``[detector, angle,
+source]`` everywhere (the response's ``P[d, t, n]``).
+"""
+
+from __future__ import annotations
+
+import astropy.units as u
+import numpy as np
+
+__all__ = [
+    "ANGLE_UNIT",
+    "ENERGY_UNIT",
+    "LENGTH_UNIT",
+    "TIME_UNIT",
+    "mask_coordinate",
+    "shadow_shift",
+    "source_direction",
+]
+
+LENGTH_UNIT = u.cm
+ANGLE_UNIT = u.rad
+ENERGY_UNIT = u.keV
+TIME_UNIT = u.s
+
+
+def source_direction(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Unit vector toward a source at zenith ``theta`` and azimuth ``phi`` (rad).
+
+    Returns an array of shape ``theta.shape + (3,)``.
+    """
+    theta = np.asarray(theta, dtype=float)
+    phi = np.asarray(phi, dtype=float)
+    st = np.sin(theta)
+    return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=-1)
+
+
+def mask_coordinate(x: np.ndarray, y: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """Mask-frame coordinate perpendicular to the slats of lab point ``(x, y)`` at angle ``xi``.
+
+    ``u = x cos(xi) - y sin(xi)``, i.e. ``r cos(psi + xi)`` for polar ``(r, psi)``.
+    """
+    return np.asarray(x) * np.cos(xi) - np.asarray(y) * np.sin(xi)
+
+
+def shadow_shift(thickness: float, theta: np.ndarray, phi: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """Growth ``s`` of the mask coordinate of a ray from the mask bottom to its top face.
+
+    ``s = h tan(theta) cos(xi + phi)``.  The seed paper prints ``h tan(theta) sin(xi - phi)``,
+    which is a quarter-turn phase slip against its own ``x(t) = r cos(xi + xi0)``; see
+    ``docs/physics.md``.
+    """
+    return thickness * np.tan(theta) * np.cos(np.asarray(xi) + np.asarray(phi))

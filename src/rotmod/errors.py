@@ -1,0 +1,36 @@
+"""The exception family of rotmod.
+
+Every error that a user's input can cause derives from :class:`RotmodError`, itself a
+:class:`ValueError`, so callers may catch either.  Messages name the parameter, the value
+received and the rule it broke.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "InstrumentMismatchError",
+    "MaterialError",
+    "ModelValidityError",
+    "ParameterError",
+    "RotmodError",
+]
+
+
+class RotmodError(ValueError):
+    """Base class of all rotmod errors caused by input."""
+
+
+class ParameterError(RotmodError):
+    """A parameter is out of its allowed range, has the wrong unit, shape or is not finite."""
+
+
+class MaterialError(RotmodError):
+    """Unknown material, or an energy outside the attenuation database's range."""
+
+
+class ModelValidityError(RotmodError):
+    """A profile model was asked for a geometry or source outside its validity."""
+
+
+class InstrumentMismatchError(RotmodError):
+    """A stored product (e.g. a response) does not match the instrument it is used with."""

@@ -1,0 +1,10 @@
+"""Instrument geometry: the slat mask, the detector array and the rotating instrument.
+
+All follow :mod:`rotmod.conventions`.
+"""
+
+from rotmod.geometry.detectors import DetectorArray
+from rotmod.geometry.instrument import Instrument
+from rotmod.geometry.mask import Mask
+
+__all__ = ["DetectorArray", "Instrument", "Mask"]

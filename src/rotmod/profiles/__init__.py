@@ -1,0 +1,26 @@
+"""Characteristic count-rate profile models.
+
+``standard`` (the paper's Sec. 2), ``advanced`` in three variants (Sec. 3: G0 only, G0 plus
+the exact G1, G0 plus the approximation G1~) and ``exact`` (first principles, any geometry).
+Pick one by name with :func:`get_model`.
+"""
+
+from rotmod.profiles.base import (
+    MODELS,
+    ProfileModel,
+    ProjectedGeometry,
+    get_model,
+    project,
+    register_model,
+)
+from rotmod.profiles.exact import ExactModel
+
+__all__ = [
+    "MODELS",
+    "ExactModel",
+    "ProfileModel",
+    "ProjectedGeometry",
+    "get_model",
+    "project",
+    "register_model",
+]

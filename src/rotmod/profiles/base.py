@@ -1,0 +1,227 @@
+"""The profile-model interface, the projected geometry every model shares, and the registry.
+
+A characteristic profile ``P[d, t, n]`` is the unattenuated fraction of the photons of source
+``n`` that reach detector ``d`` at mask angle ``xi[t]`` (see :mod:`rotmod.conventions`).
+
+Every model reduces the 3-D geometry the same way (derived in ``docs/physics.md``): for
+detector ``d`` and source ``n`` let
+
+* ``X = x0 + L tan(theta) cos(phi)`` and ``Y = y0 + L tan(theta) sin(phi)`` be the point
+  where the ray to the detector centre crosses the mask bottom (the paper's ``r, xi0`` are
+  its polar coordinates);
+* ``uc = X cos(xi) - Y sin(xi)`` its mask-frame coordinate (the paper's ``x(t)``);
+* ``s = Sx cos(xi) - Sy sin(xi) = h tan(theta) cos(xi + phi)`` with
+  ``(Sx, Sy) = h tan(theta) (cos phi, sin phi)``, the growth of the ray's mask coordinate
+  across the slab;
+* ``tau = mu h / cos(theta)``, the optical depth of the full slat thickness.
+
+Per-source and per-angle quantities are computed once, so the hot loops see only products
+and sums.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import astropy.units as u
+import numpy as np
+
+from rotmod._validate import as_array
+from rotmod.errors import ParameterError
+from rotmod.geometry import Instrument
+
+__all__ = [
+    "MODELS",
+    "ProfileModel",
+    "ProjectedGeometry",
+    "get_model",
+    "project",
+    "register_model",
+]
+
+#: Largest zenith angle accepted (rad).  ``tan(theta)`` must stay finite.
+_THETA_MAX = np.pi / 2
+
+
+@dataclass(frozen=True)
+class ProjectedGeometry:
+    """Source-, detector- and angle-independent pieces of the profile computation.
+
+    Attributes
+    ----------
+    X, Y : ndarray, shape (n_det, n_src)
+        Lab coordinates (cm) where the ray to each detector centre crosses the mask bottom.
+    Sx, Sy : ndarray, shape (n_src,)
+        ``h tan(theta) (cos phi, sin phi)`` (cm).
+    tau : ndarray, shape (n_src,)
+        Optical depth ``mu h / cos(theta)`` of a full slat (``inf`` for opaque slats).
+    theta, phi : ndarray, shape (n_src,)
+        Source zenith and azimuth (rad).
+    mu : float
+        Linear attenuation coefficient of the slats (1/cm).
+    """
+
+    X: np.ndarray
+    Y: np.ndarray
+    Sx: np.ndarray
+    Sy: np.ndarray
+    tau: np.ndarray
+    theta: np.ndarray
+    phi: np.ndarray
+    mu: float
+
+    def mask_coordinates(self, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``uc[d, t, n]`` and ``s[t, n]`` at mask angles ``xi`` (plain numpy; for checks)."""
+        c, s_ = np.cos(xi)[:, None], np.sin(xi)[:, None]
+        uc = self.X[:, None, :] * c[None] - self.Y[:, None, :] * s_[None]
+        return uc, self.Sx[None, :] * c - self.Sy[None, :] * s_
+
+
+def check_sources(theta: Any, phi: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Validate source directions; returns 1-D float arrays (rad) of equal length."""
+    th = as_array(theta, "theta", u.rad, lo=0.0, hi=_THETA_MAX, hi_open=True, ndim=1)
+    ph = as_array(phi, "phi", u.rad, ndim=1)
+    if th.shape != ph.shape:
+        if ph.size == 1:
+            ph = np.full(th.shape, ph[0])
+        elif th.size == 1:
+            th = np.full(ph.shape, th[0])
+        else:
+            raise ParameterError(
+                f"theta and phi must have the same length, got {th.size} and {ph.size}"
+            )
+    return th, ph
+
+
+def check_angles(xi: Any) -> np.ndarray:
+    """Validate mask angles; returns a 1-D float array (rad)."""
+    return as_array(xi, "xi", u.rad, ndim=1)
+
+
+def project(instrument: Instrument, theta: Any, phi: Any, energy: Any = None) -> ProjectedGeometry:
+    """Compute the :class:`ProjectedGeometry` of ``instrument`` for sources ``(theta, phi)``.
+
+    Parameters
+    ----------
+    instrument : Instrument
+    theta, phi : array_like or Quantity
+        Source zenith (0 <= theta < 90 deg) and azimuth, rad if plain numbers.
+    energy : float or Quantity, optional
+        Photon energy (keV); needed unless the mask has an explicit ``mu``.
+    """
+    th, ph = check_sources(theta, phi)
+    mask, det = instrument.mask, instrument.detectors
+    mu = mask.linear_attenuation(energy)
+    t = np.tan(th)
+    X = det.positions[:, 0:1] + mask.height * t * np.cos(ph)
+    Y = det.positions[:, 1:2] + mask.height * t * np.sin(ph)
+    h = mask.thickness
+    Sx, Sy = h * t * np.cos(ph), h * t * np.sin(ph)
+    if mu == 0.0:
+        tau = np.zeros_like(th)
+    elif np.isinf(mu):
+        # Opaque slats, even in the thin-mask limit h = 0.
+        tau = np.full_like(th, np.inf)
+    else:
+        tau = mu * h / np.cos(th)
+    return ProjectedGeometry(X, Y, Sx, Sy, tau, th, ph, mu)
+
+
+class ProfileModel(ABC):
+    """A characteristic-profile model.
+
+    Subclasses implement :meth:`_evaluate` (the vectorised kernel) and, if the model has a
+    limited domain, :meth:`check_validity`.  Call instances as ``model.profile(...)``.
+    """
+
+    #: Registry name.
+    name: ClassVar[str] = ""
+
+    def profile(
+        self,
+        instrument: Instrument,
+        theta: Any,
+        phi: Any,
+        xi: Any,
+        energy: Any = None,
+        *,
+        dtype: Any = np.float64,
+    ) -> np.ndarray:
+        """Characteristic profiles ``P[d, t, n]``.
+
+        Parameters
+        ----------
+        instrument : Instrument
+        theta, phi : array_like or Quantity, shape (n_src,)
+            Source zenith (< 90 deg) and azimuth; rad if plain numbers.
+        xi : array_like or Quantity, shape (n_angle,)
+            Mask angles; rad if plain numbers.
+        energy : float or Quantity, optional
+            Photon energy (keV); needed unless the mask has an explicit ``mu``.
+        dtype : numpy dtype
+            float64 (default) or float32 output.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n_det, n_angle, n_src)
+            Values in [0, 1].
+
+        Raises
+        ------
+        ParameterError, MaterialError, ModelValidityError
+        """
+        geom = project(instrument, theta, phi, energy)
+        xi = check_angles(xi)
+        self.check_validity(instrument, geom)
+        dt = np.dtype(dtype)
+        if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+            raise ParameterError(f"dtype must be float32 or float64, got {dt}")
+        out = np.empty((len(instrument.detectors), xi.size, geom.theta.size), dtype=dt)
+        self._evaluate(instrument, geom, np.cos(xi), np.sin(xi), out)
+        return out
+
+    def check_validity(self, instrument: Instrument, geom: ProjectedGeometry) -> None:
+        """Raise :class:`~rotmod.errors.ModelValidityError` outside the model's domain."""
+
+    @abstractmethod
+    def _evaluate(
+        self,
+        instrument: Instrument,
+        geom: ProjectedGeometry,
+        cos_xi: np.ndarray,
+        sin_xi: np.ndarray,
+        out: np.ndarray,
+    ) -> None:
+        """Fill ``out[d, t, n]`` in place."""
+
+    def describe(self) -> dict[str, Any]:
+        """Parameters that identify this model (for metadata)."""
+        return {"model": self.name}
+
+
+MODELS: dict[str, type[ProfileModel] | Any] = {}
+
+
+def register_model(name: str, factory: Any) -> None:
+    """Register ``factory`` (a class or a zero-argument callable) under ``name``."""
+    MODELS[name] = factory
+
+
+def get_model(model: str | ProfileModel) -> ProfileModel:
+    """Return a model instance by registry name (or pass an instance through).
+
+    Raises
+    ------
+    ParameterError
+        Unknown name; the message lists the registered ones.
+    """
+    if isinstance(model, ProfileModel):
+        return model
+    try:
+        return MODELS[model]()
+    except KeyError:
+        raise ParameterError(
+            f"model must be one of {sorted(MODELS)}, got {model!r}"
+        ) from None

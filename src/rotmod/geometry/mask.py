@@ -91,10 +91,13 @@ class Mask:
         Raises
         ------
         ParameterError
-            If no ``mu`` override is set and no energy is given.
+            If neither ``mu`` nor the material's mass attenuation is fixed and no energy
+            is given.
         """
         if self.mu is not None:
             return float(self.mu)
+        if self.material.mass_attenuation is not None:
+            return float(self.material.mass_attenuation * self.material.density)
         if energy is None:
             raise ParameterError(
                 "energy is required: mask.mu is not set, so the attenuation comes from the "

@@ -1,0 +1,127 @@
+"""Square tangent-plane (gnomonic) sky grids around the pointing axis.
+
+The instrument frame is drawn on the sky as if the pointing axis (lab +z) were at
+RA = Dec = 0 with the lab +x axis toward +RA and +y toward +Dec.  A direction at zenith
+``theta`` and azimuth ``phi`` has tangent-plane coordinates (degrees)
+
+    x = (180/pi) tan(theta) cos(phi),   y = (180/pi) tan(theta) sin(phi),
+
+which are exactly the FITS ``TAN`` intermediate world coordinates, so the WCS written with
+the images places every pixel where the response computed it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import astropy.units as u
+import numpy as np
+
+from rotmod._validate import as_scalar
+from rotmod.errors import ParameterError
+
+__all__ = ["SkyGrid"]
+
+
+@dataclass(frozen=True)
+class SkyGrid:
+    """A square-pixel tangent-plane grid.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        ``(ny, nx)`` number of pixels; images are ``image[iy, ix]`` and flattened sky
+        vectors use C order (``n = iy * nx + ix``).
+    pixel_size : float or Quantity
+        Pixel side (deg if a plain number), > 0.
+    center : (float, float) or Quantity
+        Tangent-plane coordinates ``(x, y)`` of the field centre (deg); default the axis.
+    """
+
+    shape: tuple[int, int]
+    pixel_size: float
+    center: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        try:
+            ny, nx = (int(v) for v in self.shape)
+        except (TypeError, ValueError) as exc:
+            raise ParameterError(f"grid.shape must be (ny, nx), got {self.shape!r}") from exc
+        if ny < 1 or nx < 1 or (ny, nx) != tuple(self.shape):
+            raise ParameterError(f"grid.shape must be two integers >= 1, got {self.shape!r}")
+        object.__setattr__(self, "shape", (ny, nx))
+        pix = as_scalar(self.pixel_size, "grid.pixel_size", u.deg, lo=0.0, lo_open=True)
+        object.__setattr__(self, "pixel_size", pix)
+        cx = as_scalar(self.center[0], "grid.center[0]", u.deg)
+        cy = as_scalar(self.center[1], "grid.center[1]", u.deg)
+        object.__setattr__(self, "center", (cx, cy))
+        half = np.degrees(np.arctan(1e3))  # theta < 89.94 deg: keep tan(theta) finite
+        if max(abs(cx) + nx * pix / 2, abs(cy) + ny * pix / 2) > 180 / np.pi * 1e3:
+            raise ParameterError(f"grid extends beyond theta = {half:.2f} deg; shrink it")
+
+    @classmethod
+    def paper(cls) -> SkyGrid:
+        """The seed paper's grid: 14 deg field in 12 arcmin pixels (70 x 70 = 4900)."""
+        return cls((70, 70), 0.2)
+
+    @classmethod
+    def square(cls, fov: Any, pixel_size: Any, center: tuple[float, float] = (0.0, 0.0)) -> SkyGrid:
+        """A square field of side ``fov`` (deg) in pixels of ``pixel_size`` (deg)."""
+        f = as_scalar(fov, "grid.fov", u.deg, lo=0.0, lo_open=True)
+        p = as_scalar(pixel_size, "grid.pixel_size", u.deg, lo=0.0, lo_open=True)
+        n = max(1, round(f / p))
+        return cls((n, n), p, center)
+
+    @property
+    def size(self) -> int:
+        """Number of pixels ``n_sky``."""
+        return self.shape[0] * self.shape[1]
+
+    def pixel_centers(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tangent-plane coordinates ``(x, y)`` (deg) of pixel centres, each shape (ny, nx)."""
+        ny, nx = self.shape
+        x = self.center[0] + (np.arange(nx) - (nx - 1) / 2) * self.pixel_size
+        y = self.center[1] + (np.arange(ny) - (ny - 1) / 2) * self.pixel_size
+        return np.meshgrid(x, y)
+
+    def directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Zenith and azimuth (rad) of every pixel centre, flattened (n_sky,) in C order."""
+        x, y = (np.radians(v).ravel() for v in self.pixel_centers())
+        return np.arctan(np.hypot(x, y)), np.arctan2(y, x)
+
+    def to_tangent(self, theta: Any, phi: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Tangent-plane coordinates (deg) of directions ``(theta, phi)`` (rad)."""
+        t = np.tan(np.asarray(theta, dtype=float))
+        return np.degrees(t * np.cos(phi)), np.degrees(t * np.sin(phi))
+
+    def from_tangent(self, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Directions ``(theta, phi)`` (rad) of tangent-plane coordinates (deg)."""
+        xr, yr = np.radians(np.asarray(x, dtype=float)), np.radians(np.asarray(y, dtype=float))
+        return np.arctan(np.hypot(xr, yr)), np.arctan2(yr, xr)
+
+    def wcs(self) -> Any:
+        """An `astropy.wcs.WCS` (TAN) for images on this grid (see module notes)."""
+        from astropy.wcs import WCS
+
+        ny, nx = self.shape
+        w = WCS(naxis=2)
+        w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+        w.wcs.cunit = ["deg", "deg"]
+        w.wcs.crval = [0.0, 0.0]
+        w.wcs.cdelt = [self.pixel_size, self.pixel_size]
+        # Pixel (1-based FITS) whose centre is the tangent point (0, 0).
+        w.wcs.crpix = [
+            (nx + 1) / 2 - self.center[0] / self.pixel_size,
+            (ny + 1) / 2 - self.center[1] / self.pixel_size,
+        ]
+        return w
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain description (deg) for metadata."""
+        return {"shape": list(self.shape), "pixel_size": self.pixel_size, "center": list(self.center)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SkyGrid:
+        """Inverse of :meth:`to_dict`."""
+        return cls(tuple(d["shape"]), d["pixel_size"], tuple(d["center"]))

@@ -35,27 +35,42 @@ class ResponseOperator(ABC):
     n_det: int
     n_time: int
     n_sky: int
+    #: Floating type of the products (float32 or float64).
+    dtype: np.dtype = np.dtype(np.float64)
+    #: Optional metadata: the instrument, sky grid, time binning, profile model and energy
+    #: the response was computed for (``None`` when unknown, e.g. a matrix from elsewhere).
+    instrument: Any = None
+    grid: Any = None
+    time_bins: Any = None
+    model: Any = None
+    energy: float | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
         """``(n_det * n_time, n_sky)``, the shape of the flattened matrix."""
         return (self.n_det * self.n_time, self.n_sky)
 
-    def forward(self, sky: np.ndarray) -> np.ndarray:
-        """``P S``: folded rates ``(n_det, n_time)`` of sky vector ``sky`` ``(n_sky,)``."""
+    def _check_sky(self, sky: Any) -> np.ndarray:
         x = np.asarray(sky)
         if x.shape != (self.n_sky,):
             raise ParameterError(f"sky must have shape ({self.n_sky},), got {x.shape}")
-        return self._forward(x)
+        return x
 
-    def adjoint(self, counts: np.ndarray) -> np.ndarray:
-        """``P^T Y``: sky vector ``(n_sky,)`` of folded data ``counts`` ``(n_det, n_time)``."""
+    def _check_counts(self, counts: Any) -> np.ndarray:
         y = np.asarray(counts)
         if y.shape != (self.n_det, self.n_time):
             raise ParameterError(
                 f"counts must have shape ({self.n_det}, {self.n_time}), got {y.shape}"
             )
-        return self._adjoint(y)
+        return y
+
+    def forward(self, sky: np.ndarray) -> np.ndarray:
+        """``P S``: folded rates ``(n_det, n_time)`` of sky vector ``sky`` ``(n_sky,)``."""
+        return self._forward(self._check_sky(sky))
+
+    def adjoint(self, counts: np.ndarray) -> np.ndarray:
+        """``P^T Y``: sky vector ``(n_sky,)`` of folded data ``counts`` ``(n_det, n_time)``."""
+        return self._adjoint(self._check_counts(counts))
 
     @cached_property
     def _sensitivity(self) -> np.ndarray:
@@ -72,12 +87,44 @@ class ResponseOperator(ABC):
     def _adjoint(self, counts: np.ndarray) -> np.ndarray: ...
 
     def as_linear_operator(self) -> Any:
-        """A `scipy.sparse.linalg.LinearOperator` on flattened vectors."""
+        """A `scipy.sparse.linalg.LinearOperator` on flattened vectors.
+
+        The operator is declared float64 and returns float64 vectors (products of a float32
+        response are computed in float32 and then widened), which is what scipy's iterative
+        solvers (``lsqr``, ``cg``, ...) expect.
+        """
         from scipy.sparse.linalg import LinearOperator
 
         return LinearOperator(
             self.shape,
-            matvec=lambda x: self.forward(np.ravel(x)).ravel(),
-            rmatvec=lambda y: self.adjoint(np.reshape(y, (self.n_det, self.n_time))),
+            matvec=lambda x: self.forward(np.ravel(x)).ravel().astype(np.float64, copy=False),
+            rmatvec=lambda y: self.adjoint(np.reshape(y, (self.n_det, self.n_time))).astype(
+                np.float64, copy=False
+            ),
             dtype=np.float64,
         )
+
+    def metadata(self) -> dict[str, Any]:
+        """Everything needed to reproduce this response, as plain (JSON-able) values.
+
+        Keys: ``instrument`` (:meth:`Instrument.to_dict`), ``grid`` (:meth:`SkyGrid.to_dict`),
+        ``time_bins`` (:meth:`TimeBinning.to_dict`), ``model`` (``ProfileModel.describe()``),
+        ``energy`` (keV or ``None``), ``dtype``, ``shape`` ``[n_det, n_time, n_sky]`` and
+        ``rotmod_version``; unknown entries are ``None``.
+        """
+        import rotmod
+
+        def _d(obj: Any) -> Any:
+            return None if obj is None else obj.to_dict()
+
+        model = self.model
+        return {
+            "instrument": _d(self.instrument),
+            "grid": _d(self.grid),
+            "time_bins": _d(self.time_bins),
+            "model": None if model is None else model.describe(),
+            "energy": None if self.energy is None else float(self.energy),
+            "dtype": np.dtype(self.dtype).name,
+            "shape": [int(self.n_det), int(self.n_time), int(self.n_sky)],
+            "rotmod_version": rotmod.__version__,
+        }

@@ -119,7 +119,11 @@ class SkyGrid:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain description (deg) for metadata."""
-        return {"shape": list(self.shape), "pixel_size": self.pixel_size, "center": list(self.center)}
+        return {
+            "shape": list(self.shape),
+            "pixel_size": self.pixel_size,
+            "center": list(self.center),
+        }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> SkyGrid:

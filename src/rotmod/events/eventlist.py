@@ -1,0 +1,140 @@
+"""Time-tagged event lists."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import astropy.units as u
+import numpy as np
+
+from rotmod._validate import as_array, as_scalar
+from rotmod.errors import ParameterError
+from rotmod.events.gti import check_gti
+from rotmod.geometry import Instrument
+
+if TYPE_CHECKING:
+    from rotmod.montecarlo.sources import PointSources
+
+__all__ = ["EventList"]
+
+#: Default header metadata of an event list (see :mod:`rotmod.io.events`).
+DEFAULT_META: dict[str, Any] = {
+    "telescop": "ROTMOD",
+    "instrume": "RM",
+    "timesys": "TT",
+    "mjdref": 51544.0,  # 2000-01-01 00:00 TT; arbitrary for simulations
+    "timezero": 0.0,
+    "creator": "rotmod",
+}
+
+
+@dataclass(frozen=True, eq=False)
+class EventList:
+    """Photon events recorded by a rotating modulator.
+
+    Parameters
+    ----------
+    time : array_like, shape (n,)
+        Arrival times (s since ``meta['mjdref']``), sorted.
+    detector : array_like of int, shape (n,)
+        Detector index ``0 <= id < n_det`` (rows of ``instrument.detectors.positions``).
+    energy : array_like, shape (n,)
+        Energy (keV), stored as float32.
+    instrument : Instrument
+        The instrument, including its rotation period.
+    gti : array_like, shape (k, 2)
+        Good-time intervals (s); every event lies in one.
+    start_phase : float
+        Mask angle at ``time = 0`` (rad): ``xi(t) = 2 pi t / rotation_period + start_phase``.
+    t_start, t_stop : float, optional
+        Exposure bounds (s); default the first GTI start and the last GTI stop.
+    source : array_like of int, shape (n,), optional
+        Monte Carlo truth: index of the emitting source, -1 for background.
+    sources : PointSources, optional
+        The simulated sources (metadata).
+    meta : dict
+        Header metadata (``telescop``, ``instrume``, ``timesys``, ``mjdref``, ``timezero``,
+        ...); missing keys take :data:`DEFAULT_META` values.
+    """
+
+    time: np.ndarray
+    detector: np.ndarray
+    energy: np.ndarray
+    instrument: Instrument
+    gti: np.ndarray
+    start_phase: float = 0.0
+    t_start: float | None = None
+    t_stop: float | None = None
+    source: np.ndarray | None = None
+    sources: PointSources | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.instrument, Instrument):
+            raise ParameterError(
+                f"events.instrument must be an Instrument, got {type(self.instrument)}"
+            )
+        t = as_array(self.time, "events.time", u.s, ndim=1)
+        n = t.size
+        det = np.asarray(self.detector)
+        if det.shape != (n,):
+            raise ParameterError(f"events.detector must have shape ({n},), got {det.shape}")
+        if n and not np.issubdtype(det.dtype, np.integer):
+            if not np.all(det == np.round(det)):
+                raise ParameterError("events.detector must hold integer detector ids")
+        det = det.astype(np.int32)
+        n_det = len(self.instrument.detectors)
+        if n and (det.min() < 0 or det.max() >= n_det):
+            bad = det[(det < 0) | (det >= n_det)][0]
+            raise ParameterError(
+                f"events.detector must lie in 0..{n_det - 1} (the instrument's detectors), "
+                f"got {bad}"
+            )
+        e = as_array(self.energy, "events.energy", u.keV, ndim=1).astype(np.float32)
+        if e.shape != (n,):
+            raise ParameterError(f"events.energy must have shape ({n},), got {e.shape}")
+        if n > 1 and np.any(np.diff(t) < 0):
+            raise ParameterError("events.time must be sorted in increasing order")
+        phase = as_scalar(self.start_phase, "start_phase", u.rad)
+        gti = check_gti(self.gti, self.t_start, self.t_stop)
+        t0 = float(gti[0, 0]) if self.t_start is None else as_scalar(self.t_start, "t_start", u.s)
+        t1 = float(gti[-1, 1]) if self.t_stop is None else as_scalar(self.t_stop, "t_stop", u.s)
+        src = None
+        if self.source is not None:
+            src = np.asarray(self.source).astype(np.int32)
+            if src.shape != (n,):
+                raise ParameterError(f"events.source must have shape ({n},), got {src.shape}")
+        meta = {**DEFAULT_META, **dict(self.meta)}
+        for name, val in (
+            ("time", t), ("detector", det), ("energy", e), ("gti", gti), ("source", src)
+        ):
+            if val is not None:
+                val = np.array(val)
+                val.flags.writeable = False
+            object.__setattr__(self, name, val)
+        object.__setattr__(self, "start_phase", phase)
+        object.__setattr__(self, "t_start", t0)
+        object.__setattr__(self, "t_stop", t1)
+        object.__setattr__(self, "meta", meta)
+
+    def __len__(self) -> int:
+        return self.time.size
+
+    @property
+    def exposure(self) -> float:
+        """Total good time (s): the sum of the GTI lengths (no dead time is modelled)."""
+        return float(np.sum(self.gti[:, 1] - self.gti[:, 0]))
+
+    def mask_angle(self) -> np.ndarray:
+        """Mask angle ``xi`` (rad, not wrapped) of every event."""
+        return self.instrument.mask_angle(self.time) + self.start_phase
+
+    def select(self, mask: np.ndarray) -> EventList:
+        """A new event list holding the events where boolean ``mask`` is true."""
+        mask = np.asarray(mask, dtype=bool)
+        return EventList(
+            self.time[mask], self.detector[mask], self.energy[mask], self.instrument,
+            self.gti, self.start_phase, self.t_start, self.t_stop,
+            None if self.source is None else self.source[mask], self.sources, dict(self.meta),
+        )

@@ -1,0 +1,412 @@
+"""FITS event lists and folded profiles.
+
+Event files follow the usual layout of high-energy astronomy event lists (OGIP):
+
+* ``EVENTS`` binary table (``HDUCLAS1 = 'EVENTS'``): ``TIME`` (s), ``DET_ID``, ``ENERGY``
+  (keV) and, for simulations, ``SRC_ID`` (emitting source, -1 for background), with
+  ``TELESCOP``, ``INSTRUME``, ``TSTART``, ``TSTOP``, ``TIMEUNIT``, ``TIMESYS``,
+  ``MJDREFI``/``MJDREFF``, ``TIMEZERO``, ``EXPOSURE``, ``ONTIME``, ``LIVETIME``,
+  ``TELAPSE`` and the instrument geometry (``MASK_A``, ``MASK_B``, ``MASK_H``, ``MASK_L``,
+  ``MASK_MAT``, ``MASK_RHO``, ``MASK_SIG``, ``MASK_MU``, ``DET_DIAM``, ``NDET``,
+  ``ROT_PER``, ``ROT_PHA0``);
+* ``GTI`` (``START``, ``STOP``);
+* ``DETECTORS`` (``DET_ID``, ``DETX``, ``DETY`` in cm);
+* ``SOURCES`` (simulated ``THETA``, ``PHI`` in rad, ``RATE``, ``ENERGY``), when known.
+
+Folded profiles are a ``PROFILES`` table (``BIN_LO``, ``BIN_HI`` in rad, ``EXPOSURE``,
+``COUNTS`` a vector of one entry per detector) with the same geometry keywords, ``GTI`` and
+``DETECTORS``.  The geometry round-trips through :meth:`Instrument.to_dict` /
+:meth:`Instrument.from_dict`.  Writers refuse to overwrite unless asked and write
+atomically (temporary file in the same folder, then :func:`os.replace`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from astropy.io import fits
+
+from rotmod.errors import ParameterError, RotmodError
+from rotmod.events import EventList, FoldedProfiles
+from rotmod.geometry import Instrument
+
+__all__ = ["read_events", "read_folded", "write_events", "write_folded"]
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _instrument_cards(inst: Instrument, start_phase: float) -> list[tuple[str, Any, str]]:
+    d = inst.to_dict()
+    m = d["mask"]
+    cards = [
+        ("MASK_A", m["slat_width"], "[cm] slat width a"),
+        ("MASK_B", m["slat_gap"], "[cm] slat gap b"),
+        ("MASK_H", m["thickness"], "[cm] slat thickness h"),
+        ("MASK_L", m["height"], "[cm] mask bottom above detector plane L"),
+        ("MASK_MAT", m["material"], "slat material"),
+        ("MASK_RHO", m["density"], "[g/cm3] slat density"),
+    ]
+    if m["mass_attenuation"] is not None:
+        cards.append(("MASK_SIG", m["mass_attenuation"], "[cm2/g] fixed mass attenuation"))
+    if m["mu"] is not None:
+        if math.isinf(m["mu"]):
+            cards.append(("MASK_MU", "INF", "[1/cm] fixed linear attenuation: opaque"))
+        else:
+            cards.append(("MASK_MU", m["mu"], "[1/cm] fixed linear attenuation"))
+    cards += [
+        ("DET_DIAM", d["detectors"]["diameter"], "[cm] detector diameter c"),
+        ("NDET", len(inst.detectors), "number of detectors"),
+        ("ROT_PER", d["rotation_period"], "[s] mask rotation period"),
+        ("ROT_PHA0", start_phase, "[rad] mask angle at TIME = 0"),
+    ]
+    return cards
+
+
+def _detectors_hdu(inst: Instrument) -> fits.BinTableHDU:
+    pos = inst.detectors.positions
+    hdu = fits.BinTableHDU.from_columns(
+        [
+            fits.Column("DET_ID", "J", array=np.arange(pos.shape[0], dtype=np.int32)),
+            fits.Column("DETX", "D", unit="cm", array=pos[:, 0]),
+            fits.Column("DETY", "D", unit="cm", array=pos[:, 1]),
+        ],
+        name="DETECTORS",
+    )
+    hdu.header["DET_DIAM"] = (inst.detectors.diameter, "[cm] detector diameter c")
+    return hdu
+
+
+def _gti_hdu(gti: np.ndarray, header: dict[str, Any]) -> fits.BinTableHDU:
+    hdu = fits.BinTableHDU.from_columns(
+        [
+            fits.Column("START", "D", unit="s", array=gti[:, 0]),
+            fits.Column("STOP", "D", unit="s", array=gti[:, 1]),
+        ],
+        name="GTI",
+    )
+    hdu.header["HDUCLASS"] = "OGIP"
+    hdu.header["HDUCLAS1"] = "GTI"
+    hdu.header["HDUCLAS2"] = "STANDARD"
+    for k in ("TELESCOP", "INSTRUME", "TIMESYS", "TIMEUNIT", "MJDREFI", "MJDREFF", "TIMEZERO"):
+        if k in header:
+            hdu.header[k] = header[k]
+    return hdu
+
+
+def _time_cards(meta: dict[str, Any], t_start: float, t_stop: float, gti: np.ndarray) -> list:
+    mjdref = float(meta.get("mjdref", 51544.0))
+    ontime = float(np.sum(gti[:, 1] - gti[:, 0]))
+    return [
+        ("TELESCOP", str(meta.get("telescop", "ROTMOD")), "mission or telescope"),
+        ("INSTRUME", str(meta.get("instrume", "RM")), "instrument"),
+        ("CREATOR", str(meta.get("creator", "rotmod")), "software"),
+        ("TIMESYS", str(meta.get("timesys", "TT")), "time system"),
+        ("TIMEUNIT", "s", "unit of TIME, TSTART, TSTOP"),
+        ("TIMEREF", "LOCAL", "times are not barycentred"),
+        ("MJDREFI", math.floor(mjdref), "integer part of reference MJD"),
+        ("MJDREFF", mjdref - math.floor(mjdref), "fractional part of reference MJD"),
+        ("TIMEZERO", float(meta.get("timezero", 0.0)), "[s] offset added to TIME"),
+        ("TSTART", t_start, "[s] start of the observation"),
+        ("TSTOP", t_stop, "[s] end of the observation"),
+        ("TELAPSE", t_stop - t_start, "[s] TSTOP - TSTART"),
+        ("ONTIME", ontime, "[s] sum of good time intervals"),
+        ("LIVETIME", ontime, "[s] ONTIME (no dead time modelled)"),
+        ("EXPOSURE", ontime, "[s] exposure"),
+    ]
+
+
+def _write_atomic(hdul: fits.HDUList, path: str | os.PathLike, overwrite: bool) -> Path:
+    p = Path(path)
+    if p.exists() and not overwrite:
+        raise ParameterError(f"path {str(p)!r} exists; pass overwrite=True to replace it")
+    if not p.parent.exists():
+        raise ParameterError(f"path {str(p)!r}: folder {str(p.parent)!r} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    os.close(fd)
+    try:
+        hdul.writeto(tmp, overwrite=True, checksum=True)
+        os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return p
+
+
+def _open(path: str | os.PathLike) -> fits.HDUList:
+    p = Path(path)
+    if not p.is_file():
+        raise RotmodError(f"file {str(p)!r} does not exist")
+    try:
+        hdul = fits.open(p, memmap=False)
+        hdul.verify("exception")
+    except (OSError, fits.VerifyError, ValueError, TypeError) as exc:
+        raise RotmodError(f"file {str(p)!r} is not a readable FITS file: {exc}") from exc
+    return hdul
+
+
+def _ext(hdul: fits.HDUList, name: str, path: Any) -> Any:
+    try:
+        return hdul[name]
+    except KeyError:
+        raise RotmodError(f"file {str(path)!r} has no {name} extension") from None
+
+
+def _key(header: Any, key: str, path: Any, ext: str) -> Any:
+    if key not in header:
+        raise RotmodError(f"file {str(path)!r}: {ext} header lacks keyword {key}")
+    return header[key]
+
+
+def _col(data: Any, name: str, path: Any, ext: str) -> np.ndarray:
+    if data is None or name not in data.columns.names:
+        raise RotmodError(f"file {str(path)!r}: {ext} table lacks column {name}")
+    return np.asarray(data[name])
+
+
+def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> Instrument:
+    det = _ext(hdul, "DETECTORS", path)
+    ids = _col(det.data, "DET_ID", path, "DETECTORS")
+    order = np.argsort(ids)
+    pos = np.stack(
+        [_col(det.data, "DETX", path, "DETECTORS"), _col(det.data, "DETY", path, "DETECTORS")],
+        axis=1,
+    )[order].astype(float)
+    mu = header.get("MASK_MU")
+    if isinstance(mu, str):
+        mu = math.inf if mu.strip().upper() == "INF" else float(mu)
+    d = {
+        "mask": {
+            "slat_width": float(_key(header, "MASK_A", path, ext)),
+            "slat_gap": float(_key(header, "MASK_B", path, ext)),
+            "thickness": float(_key(header, "MASK_H", path, ext)),
+            "height": float(_key(header, "MASK_L", path, ext)),
+            "material": str(_key(header, "MASK_MAT", path, ext)),
+            "density": float(_key(header, "MASK_RHO", path, ext)),
+            "mass_attenuation": (
+                float(header["MASK_SIG"]) if "MASK_SIG" in header else None
+            ),
+            "mu": None if mu is None else float(mu),
+        },
+        "detectors": {
+            "diameter": float(_key(header, "DET_DIAM", path, ext)),
+            "positions": pos.tolist(),
+        },
+        "rotation_period": float(_key(header, "ROT_PER", path, ext)),
+    }
+    try:
+        return Instrument.from_dict(d)
+    except RotmodError as exc:
+        raise RotmodError(f"file {str(path)!r}: invalid instrument geometry: {exc}") from exc
+
+
+def _read_gti(hdul: fits.HDUList, path: Any) -> np.ndarray:
+    g = _ext(hdul, "GTI", path)
+    return np.stack(
+        [_col(g.data, "START", path, "GTI"), _col(g.data, "STOP", path, "GTI")], axis=1
+    ).astype(float)
+
+
+def _meta_from(header: Any) -> dict[str, Any]:
+    meta = {
+        "telescop": header.get("TELESCOP", "ROTMOD"),
+        "instrume": header.get("INSTRUME", "RM"),
+        "timesys": header.get("TIMESYS", "TT"),
+        "mjdref": float(header.get("MJDREFI", 51544)) + float(header.get("MJDREFF", 0.0)),
+        "timezero": float(header.get("TIMEZERO", 0.0)),
+        "creator": header.get("CREATOR", "rotmod"),
+    }
+    if "RM_META" in header:
+        try:
+            meta.update(json.loads(header["RM_META"]))
+        except json.JSONDecodeError:
+            pass
+    return meta
+
+
+# --------------------------------------------------------------------------- events
+
+
+def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Write an event list as a FITS file (see the module notes for the layout).
+
+    Parameters
+    ----------
+    events : EventList
+    path : str or path-like
+        Output file.
+    overwrite : bool
+        Replace an existing file (default: refuse).
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+
+    Raises
+    ------
+    ParameterError
+        ``path`` exists and ``overwrite`` is false, or its folder does not exist.
+    """
+    if not isinstance(events, EventList):
+        raise ParameterError(f"events must be an EventList, got {type(events)}")
+    cols = [
+        fits.Column("TIME", "D", unit="s", array=events.time),
+        fits.Column("DET_ID", "J", array=events.detector.astype(np.int32)),
+        fits.Column("ENERGY", "E", unit="keV", array=events.energy.astype(np.float32)),
+    ]
+    if events.source is not None:
+        cols.append(fits.Column("SRC_ID", "J", array=events.source.astype(np.int32)))
+    ev = fits.BinTableHDU.from_columns(cols, name="EVENTS")
+    h = ev.header
+    h["HDUCLASS"] = ("OGIP", "format conforms to OGIP standard")
+    h["HDUCLAS1"] = ("EVENTS", "extension contains events")
+    for k, v, c in _time_cards(events.meta, events.t_start, events.t_stop, events.gti):
+        h[k] = (v, c)
+    for k, v, c in _instrument_cards(events.instrument, events.start_phase):
+        h[k] = (v, c)
+    hdus = [fits.PrimaryHDU(), ev, _gti_hdu(events.gti, dict(h)), _detectors_hdu(events.instrument)]
+    if events.sources is not None:
+        s = events.sources
+        hdus.append(
+            fits.BinTableHDU.from_columns(
+                [
+                    fits.Column("THETA", "D", unit="rad", array=s.theta),
+                    fits.Column("PHI", "D", unit="rad", array=s.phi),
+                    fits.Column("RATE", "D", unit="1/s", array=s.rate),
+                    fits.Column("ENERGY", "D", unit="keV", array=s.energy),
+                ],
+                name="SOURCES",
+            )
+        )
+    for k in ("TELESCOP", "INSTRUME"):
+        hdus[0].header[k] = h[k]
+    return _write_atomic(fits.HDUList(hdus), path, overwrite)
+
+
+def read_events(path: str | os.PathLike) -> EventList:
+    """Read an event list written by :func:`write_events`.
+
+    Raises
+    ------
+    RotmodError
+        Missing file, not FITS, or missing extensions, columns or keywords.
+    """
+    from rotmod.montecarlo.sources import PointSources
+
+    with _open(path) as hdul:
+        ev = _ext(hdul, "EVENTS", path)
+        h = ev.header
+        if h.get("HDUCLAS1") != "EVENTS":
+            raise RotmodError(f"file {str(path)!r}: EVENTS extension lacks HDUCLAS1 = 'EVENTS'")
+        inst = _read_instrument(hdul, h, path, "EVENTS")
+        gti = _read_gti(hdul, path)
+        src = None
+        if ev.data is not None and "SRC_ID" in ev.data.columns.names:
+            src = np.asarray(ev.data["SRC_ID"], dtype=np.int32)
+        sources = None
+        if "SOURCES" in hdul:
+            sd = hdul["SOURCES"].data
+            sources = PointSources(
+                *(np.asarray(_col(sd, c, path, "SOURCES"), float)
+                  for c in ("THETA", "PHI", "RATE", "ENERGY"))
+            )
+        try:
+            return EventList(
+                np.asarray(_col(ev.data, "TIME", path, "EVENTS"), dtype=float),
+                np.asarray(_col(ev.data, "DET_ID", path, "EVENTS"), dtype=np.int32),
+                np.asarray(_col(ev.data, "ENERGY", path, "EVENTS"), dtype=np.float32),
+                inst,
+                gti,
+                float(h.get("ROT_PHA0", 0.0)),
+                float(_key(h, "TSTART", path, "EVENTS")),
+                float(_key(h, "TSTOP", path, "EVENTS")),
+                src,
+                sources,
+                _meta_from(h),
+            )
+        except RotmodError as exc:
+            raise RotmodError(f"file {str(path)!r}: invalid event list: {exc}") from exc
+
+
+# --------------------------------------------------------------------------- folded
+
+
+def write_folded(
+    folded: FoldedProfiles, path: str | os.PathLike, *, overwrite: bool = False
+) -> Path:
+    """Write folded count profiles as a FITS ``PROFILES`` table.
+
+    Parameters
+    ----------
+    folded : FoldedProfiles
+    path : str or path-like
+    overwrite : bool
+        Replace an existing file (default: refuse).
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    if not isinstance(folded, FoldedProfiles):
+        raise ParameterError(f"folded must be FoldedProfiles, got {type(folded)}")
+    n_det = folded.counts.shape[0]
+    ex = folded.exposure
+    cols = [
+        fits.Column("BIN_LO", "D", unit="rad", array=folded.bin_edges[:-1]),
+        fits.Column("BIN_HI", "D", unit="rad", array=folded.bin_edges[1:]),
+        fits.Column(
+            "EXPOSURE", f"{ex.shape[0]}D" if ex.ndim == 2 else "D", unit="s",
+            array=ex.T if ex.ndim == 2 else ex,
+        ),
+        fits.Column("COUNTS", f"{n_det}K", array=folded.counts.T.astype(np.int64)),
+    ]
+    tab = fits.BinTableHDU.from_columns(cols, name="PROFILES")
+    h = tab.header
+    h["HDUCLAS1"] = ("PROFILES", "count profiles folded on the mask rotation")
+    t0 = float(folded.gti[0, 0])
+    t1 = float(folded.gti[-1, 1])
+    for k, v, c in _time_cards(folded.meta, t0, t1, folded.gti):
+        h[k] = (v, c)
+    for k, v, c in _instrument_cards(folded.instrument, folded.start_phase):
+        h[k] = (v, c)
+    h["NBINS"] = (folded.n_bins, "mask-angle bins over one turn")
+    hdus = [
+        fits.PrimaryHDU(), tab, _gti_hdu(folded.gti, dict(h)), _detectors_hdu(folded.instrument)
+    ]
+    return _write_atomic(fits.HDUList(hdus), path, overwrite)
+
+
+def read_folded(path: str | os.PathLike) -> FoldedProfiles:
+    """Read folded count profiles written by :func:`write_folded`.
+
+    Raises
+    ------
+    RotmodError
+        Missing file, not FITS, or missing extensions, columns or keywords.
+    """
+    with _open(path) as hdul:
+        tab = _ext(hdul, "PROFILES", path)
+        h = tab.header
+        inst = _read_instrument(hdul, h, path, "PROFILES")
+        lo = _col(tab.data, "BIN_LO", path, "PROFILES").astype(float)
+        hi = _col(tab.data, "BIN_HI", path, "PROFILES").astype(float)
+        counts = np.atleast_2d(_col(tab.data, "COUNTS", path, "PROFILES").T).astype(np.int64)
+        if counts.shape[1] != lo.size:
+            counts = counts.reshape(-1, lo.size)
+        ex = _col(tab.data, "EXPOSURE", path, "PROFILES").astype(float)
+        ex = ex.T if ex.ndim == 2 else ex
+        try:
+            return FoldedProfiles(
+                counts, ex, np.append(lo, hi[-1]), inst, _read_gti(hdul, path),
+                float(h.get("ROT_PHA0", 0.0)), _meta_from(h),
+            )
+        except RotmodError as exc:
+            raise RotmodError(f"file {str(path)!r}: invalid folded profiles: {exc}") from exc

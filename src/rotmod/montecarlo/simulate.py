@@ -1,0 +1,445 @@
+"""Public entry points of the Monte Carlo: profiles and observations."""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import astropy.units as u
+import numpy as np
+
+from rotmod._validate import as_array, as_scalar
+from rotmod.errors import ParameterError
+from rotmod.events import EventList, check_gti
+from rotmod.geometry import Instrument
+from rotmod.montecarlo import _transport as tr
+from rotmod.montecarlo._rng import chunk_states, seed_sequence
+from rotmod.montecarlo.sources import THETA_MAX, PointSources
+
+__all__ = ["MCProfiles", "chord_lengths", "simulate_observation", "simulate_profiles"]
+
+log = logging.getLogger(__name__)
+
+#: Default photons per parallel chunk (about 40 ms of work on one core).
+DEFAULT_CHUNK = 2**20
+#: Chunks handed to numba per call (progress is reported between calls).
+_BATCH_CHUNKS = 256
+#: Incident photons per observation batch (bounds memory: 16 bytes each).
+_OBS_BATCH_PHOTONS = 2**23
+
+Progress = Callable[[int, int], Any] | bool | None
+
+
+def _check_instrument(instrument: Any) -> Instrument:
+    if not isinstance(instrument, Instrument):
+        raise ParameterError(f"instrument must be an Instrument, got {type(instrument)}")
+    return instrument
+
+
+def _check_count(value: Any, name: str, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lo:
+        raise ParameterError(f"{name} must be an integer >= {lo}, got {value!r}")
+    return int(value)
+
+
+def _progress_fn(progress: Progress, total: int, desc: str) -> tuple[Callable, Callable]:
+    """A ``(update(done, total), close())`` pair; tqdm only when ``progress is True``."""
+    if progress is None or progress is False:
+        return (lambda done, tot: None), (lambda: None)
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=total, desc=desc, unit="photon", unit_scale=True)
+
+        def update(done: int, tot: int) -> None:
+            bar.update(done - bar.n)
+
+        return update, bar.close
+    if callable(progress):
+        return progress, (lambda: None)
+    raise ParameterError(f"progress must be None, a bool or a callable, got {progress!r}")
+
+
+def _mask_params(instrument: Instrument) -> tuple[float, float, float, float, bool]:
+    m = instrument.mask
+    return m.slat_width, m.slat_gap, m.height, m.thickness, m.thickness == 0.0
+
+
+def _mu_for(instrument: Instrument, energies: np.ndarray) -> np.ndarray:
+    cache: dict[float, float] = {}
+    out = np.empty(energies.size)
+    for i, e in enumerate(energies):
+        key = float(e)
+        if key not in cache:
+            cache[key] = instrument.mask.linear_attenuation(key)
+        out[i] = cache[key]
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class MCProfiles:
+    """Monte Carlo characteristic profiles with their binomial errors.
+
+    Attributes
+    ----------
+    counts : ndarray of int64, shape (n_det, n_angle, n_src)
+        Photons transmitted unattenuated to each detector face.
+    n_photons : int
+        Photons simulated per (detector, angle, source) cell, sampled uniformly on the
+        detector face (the unobstructed flux).
+    theta, phi : ndarray, shape (n_src,)
+        Source directions (rad).
+    xi : ndarray, shape (n_angle,)
+        Mask angles (rad): the points simulated, or the bin centres.
+    xi_edges : ndarray, shape (n_angle + 1,) or None
+        Mask-angle bin edges (rad) when angles were sampled uniformly within bins.
+    energy : float or None
+        Photon energy (keV) used for the attenuation.
+    instrument : Instrument
+    """
+
+    counts: np.ndarray
+    n_photons: int
+    theta: np.ndarray
+    phi: np.ndarray
+    xi: np.ndarray
+    xi_edges: np.ndarray | None
+    energy: float | None
+    instrument: Instrument
+
+    @property
+    def fraction(self) -> np.ndarray:
+        """Transmitted fraction ``P[d, t, n] = counts / n_photons``."""
+        return self.counts / self.n_photons
+
+    @property
+    def error(self) -> np.ndarray:
+        """Binomial 1-sigma error of :attr:`fraction`, ``sqrt(f (1 - f) / n_photons)``.
+
+        Zero where ``f`` is 0 or 1; use the model's ``P (1 - P) / n`` for chi-square tests.
+        """
+        f = self.fraction
+        return np.sqrt(f * (1.0 - f) / self.n_photons)
+
+
+def _chunks(n_cells: int, n_photons: int, chunk: int) -> tuple[np.ndarray, ...]:
+    """Chunk layout: (cell_lo, cell_hi, part, nphot) arrays and the number of parts."""
+    if n_photons >= chunk:
+        m = math.ceil(n_photons / chunk)
+        base, extra = divmod(n_photons, m)
+        sizes = base + (np.arange(m) < extra)
+        q = np.repeat(np.arange(n_cells), m)
+        part = np.tile(np.arange(m), n_cells)
+        return q, q + 1, part, np.tile(sizes, n_cells), m
+    g = max(1, chunk // n_photons)
+    lo = np.arange(0, n_cells, g)
+    hi = np.minimum(lo + g, n_cells)
+    return lo, hi, np.zeros(lo.size, np.int64), np.full(lo.size, n_photons), 1
+
+
+def simulate_profiles(
+    instrument: Instrument,
+    theta: Any,
+    phi: Any,
+    xi: Any = None,
+    *,
+    xi_edges: Any = None,
+    energy: Any = None,
+    n_photons: int = 100_000,
+    seed: Any = None,
+    chunk_size: int = DEFAULT_CHUNK,
+    progress: Progress = None,
+) -> MCProfiles:
+    """Monte Carlo characteristic profiles ``P[d, t, n]`` with binomial errors.
+
+    For every detector ``d``, mask angle ``t`` and source ``n``, ``n_photons`` photons are
+    sampled uniformly on the detector face, traced back along the source direction through
+    the 3-D slat boxes, and survive with probability ``exp(-mu * chord)``.
+
+    Parameters
+    ----------
+    instrument : Instrument
+    theta, phi : array_like or Quantity, shape (n_src,)
+        Source zenith (0 <= theta < 90 deg) and azimuth; rad if plain numbers.
+    xi : array_like or Quantity, shape (n_angle,), optional
+        Mask angles (rad) at which to simulate.  Give exactly one of ``xi``, ``xi_edges``.
+    xi_edges : array_like or Quantity, shape (n_angle + 1,), optional
+        Increasing mask-angle bin edges (rad); each photon's angle is uniform in its bin.
+    energy : float or Quantity, optional
+        Photon energy (keV); needed unless the mask's attenuation is fixed.
+    n_photons : int
+        Photons per (detector, angle, source) cell, >= 1.
+    seed : None, int, SeedSequence or numpy Generator
+        Randomness; results depend on ``seed`` and ``chunk_size``, not on the thread count.
+    chunk_size : int
+        Photons per parallel chunk (each with its own random stream), >= 1.
+    progress : bool or callable, optional
+        ``True`` shows a tqdm bar; a callable is called as ``progress(done, total)``.
+
+    Returns
+    -------
+    MCProfiles
+
+    Raises
+    ------
+    ParameterError
+        Bad geometry, directions, angles or counts.
+    """
+    inst = _check_instrument(instrument)
+    th = as_array(theta, "theta", u.rad, lo=0.0, hi=THETA_MAX, hi_open=True, ndim=1)
+    ph = as_array(phi, "phi", u.rad, ndim=1)
+    if th.shape != ph.shape:
+        if ph.size == 1:
+            ph = np.full(th.shape, ph[0])
+        elif th.size == 1:
+            th = np.full(ph.shape, th[0])
+        else:
+            raise ParameterError(
+                f"theta and phi must have the same length, got {th.size} and {ph.size}"
+            )
+    if th.size == 0:
+        raise ParameterError("theta must contain at least one source direction, got none")
+    if (xi is None) == (xi_edges is None):
+        raise ParameterError("give exactly one of xi (angles) and xi_edges (angle bins)")
+    if xi is not None:
+        xs = as_array(xi, "xi", u.rad, ndim=1)
+        if xs.size == 0:
+            raise ParameterError("xi must contain at least one mask angle, got none")
+        xi_lo, xi_w, binned, edges = xs, np.zeros_like(xs), False, None
+    else:
+        edges = as_array(xi_edges, "xi_edges", u.rad, ndim=1)
+        if edges.size < 2 or np.any(np.diff(edges) <= 0):
+            raise ParameterError(
+                "xi_edges must hold at least 2 strictly increasing mask angles, "
+                f"got {edges.size} values"
+            )
+        xi_lo, xi_w, binned = edges[:-1], np.diff(edges), True
+        xs = 0.5 * (edges[1:] + edges[:-1])
+    n_photons = _check_count(n_photons, "n_photons", 1)
+    chunk_size = _check_count(chunk_size, "chunk_size", 1)
+    e = None if energy is None else as_scalar(energy, "energy", u.keV, lo=0.0, lo_open=True)
+    mu = np.full(th.size, inst.mask.linear_attenuation(e))
+    a, b, L, h, thin = _mask_params(inst)
+    thin_opaque = thin and bool(np.isinf(mu[0]))
+    det = inst.detectors
+    n_det, n_t, n_n = len(det), xs.size, th.size
+    n_cells = n_det * n_t * n_n
+    lo, hi, part, nphot, m = _chunks(n_cells, n_photons, chunk_size)
+    counts = np.zeros((m, n_cells), dtype=np.int64)
+    root = seed_sequence(seed)
+    total = n_cells * n_photons
+    update, close = _progress_fn(progress, total, "MC profiles")
+    done = 0
+    args_geom = (
+        np.ascontiguousarray(det.positions[:, 0]), np.ascontiguousarray(det.positions[:, 1]),
+        det.radius, np.sin(th), np.cos(th), np.cos(ph), np.sin(ph), mu,
+        np.ascontiguousarray(xi_lo), np.ascontiguousarray(xi_w), binned,
+        a, b, L, h, thin_opaque, n_t, n_n,
+    )
+    try:
+        for s in range(0, lo.size, _BATCH_CHUNKS):
+            sl = slice(s, s + _BATCH_CHUNKS)
+            states = chunk_states(root, lo[sl].size)
+            tr.profile_kernel(
+                lo[sl].astype(np.int64), hi[sl].astype(np.int64), part[sl].astype(np.int64),
+                nphot[sl].astype(np.int64), states, *args_geom, counts,
+            )
+            done += int(np.sum((hi[sl] - lo[sl]) * nphot[sl]))
+            update(done, total)
+    finally:
+        close()
+    log.debug("simulate_profiles: %d photons in %d chunks", total, lo.size)
+    return MCProfiles(
+        counts.sum(axis=0).reshape(n_det, n_t, n_n), n_photons, th, ph, xs, edges, e, inst
+    )
+
+
+def chord_lengths(
+    instrument: Instrument, x: Any, y: Any, theta: Any, phi: Any, xi: Any
+) -> np.ndarray:
+    """Path length (cm) in slat material of rays ending at detector-plane points.
+
+    The ray ending at lab point ``(x, y, 0)`` is traced back toward the source at
+    ``(theta, phi)`` through the mask at angle ``xi`` (all broadcast together).
+
+    Parameters
+    ----------
+    instrument : Instrument
+    x, y : array_like or Quantity
+        Lab coordinates of the rays' end points in the detector plane (cm).
+    theta, phi, xi : array_like or Quantity
+        Source zenith (< 90 deg), azimuth and mask angle (rad if plain numbers).
+
+    Returns
+    -------
+    numpy.ndarray
+        Chord lengths with the broadcast shape.
+    """
+    inst = _check_instrument(instrument)
+    xx = as_array(x, "x", u.cm)
+    yy = as_array(y, "y", u.cm)
+    th = as_array(theta, "theta", u.rad, lo=0.0, hi=THETA_MAX, hi_open=True)
+    ph = as_array(phi, "phi", u.rad)
+    xv = as_array(xi, "xi", u.rad)
+    xx, yy, th, ph, xv = np.broadcast_arrays(xx, yy, th, ph, xv)
+    shape = xx.shape
+    a, b, L, h, _ = _mask_params(inst)
+    out = tr.chords_many(
+        xx.ravel().copy(), yy.ravel().copy(), np.sin(th).ravel(), np.cos(th).ravel(),
+        np.cos(ph).ravel(), np.sin(ph).ravel(), xv.ravel().copy(), a, b, L, h,
+    )
+    return out.reshape(shape)
+
+
+def simulate_observation(
+    instrument: Instrument,
+    sources: PointSources,
+    *,
+    t_start: Any = 0.0,
+    t_stop: Any = None,
+    gti: Any = None,
+    start_phase: Any = 0.0,
+    background: Any = 0.0,
+    background_energy: Any = None,
+    seed: Any = None,
+    chunk_size: int = DEFAULT_CHUNK,
+    progress: Progress = None,
+    meta: dict[str, Any] | None = None,
+) -> EventList:
+    """Simulate a time-tagged observation with the mask rotating.
+
+    Photons of each source arrive on each detector face as a Poisson process of the source's
+    rate during the good time; at arrival time ``t`` the mask angle is
+    ``xi = 2 pi t / rotation_period + start_phase``, and each photon is transported through
+    the 3-D mask as in :func:`simulate_profiles`.  A flat (unmodulated) background adds
+    Poisson events on each detector.
+
+    Parameters
+    ----------
+    instrument : Instrument
+    sources : PointSources
+        Directions, rates (photons/s on each detector face with no mask) and energies.
+    t_start, t_stop : float or Quantity
+        Exposure bounds (s); ``t_stop`` is required unless ``gti`` is given.
+    gti : array_like, shape (k, 2), optional
+        Good-time intervals inside ``[t_start, t_stop]``; default the whole exposure.
+    start_phase : float or Quantity
+        Mask angle at ``t = 0`` (rad).
+    background : float or array_like, shape (n_det,)
+        Flat background rate per detector (1/s), >= 0.
+    background_energy : float or Quantity, optional
+        Energy (keV) given to background events; default the sources' energy when they
+        all share one.
+    seed : None, int, SeedSequence or numpy Generator
+        Randomness; results depend on ``seed`` and ``chunk_size``, not on the thread count.
+    chunk_size : int
+        Expected incident photons per parallel chunk (each with its own random streams).
+    progress : bool or callable, optional
+        ``True`` shows a tqdm bar; a callable is called as ``progress(done, total)`` with the
+        simulated time (ms) done and total.
+    meta : dict, optional
+        Header metadata for the event list (``telescop``, ``mjdref``, ...).
+
+    Returns
+    -------
+    EventList
+        Detected events sorted by time, with the Monte Carlo truth in ``source``.
+    """
+    inst = _check_instrument(instrument)
+    if not isinstance(sources, PointSources):
+        raise ParameterError(f"sources must be PointSources, got {type(sources)}")
+    t0 = as_scalar(t_start, "t_start", u.s)
+    t1 = None if t_stop is None else as_scalar(t_stop, "t_stop", u.s)
+    if gti is None and t1 is None:
+        raise ParameterError("t_stop is required unless gti is given")
+    g = check_gti(gti, t0, t1)
+    if t1 is None:
+        t1 = float(g[-1, 1])
+    phase = as_scalar(start_phase, "start_phase", u.rad)
+    n_det = len(inst.detectors)
+    bkg = as_array(background, "background", 1 / u.s, lo=0.0, ndim=1)
+    if bkg.size == 1:
+        bkg = np.full(n_det, bkg[0])
+    if bkg.shape != (n_det,):
+        raise ParameterError(
+            f"background must be a scalar or one rate per detector ({n_det}), got {bkg.shape}"
+        )
+    if background_energy is None:
+        uniq = np.unique(sources.energy)
+        if np.any(bkg > 0) and uniq.size > 1:
+            raise ParameterError(
+                "background_energy is required when the sources have different energies"
+            )
+        e_bkg = float(uniq[0])
+    else:
+        e_bkg = as_scalar(background_energy, "background_energy", u.keV, lo=0.0, lo_open=True)
+    chunk_size = _check_count(chunk_size, "chunk_size", 1)
+    mu = _mu_for(inst, sources.energy)
+    a, b, L, h, thin = _mask_params(inst)
+    thin_opaque_arr = thin & np.isinf(mu)
+    if thin_opaque_arr.any() and not thin_opaque_arr.all():
+        raise ParameterError("a thin opaque mask needs mu = inf at every source energy")
+    thin_opaque = bool(thin_opaque_arr.any())
+
+    # Time pieces of at most chunk_size expected incident photons each.
+    total_rate = n_det * float(sources.rate.sum()) + float(bkg.sum())
+    max_dt = np.inf if total_rate == 0 else chunk_size / total_rate
+    pieces = []
+    for s_, e_ in g:
+        k = max(1, math.ceil((e_ - s_) / max_dt)) if np.isfinite(max_dt) else 1
+        edges = np.linspace(s_, e_, k + 1)
+        pieces.append(np.stack([edges[:-1], edges[1:]], axis=1))
+    pc = np.concatenate(pieces)
+    root = seed_sequence(seed)
+    det = inst.detectors
+    geom = (
+        np.ascontiguousarray(det.positions[:, 0]), np.ascontiguousarray(det.positions[:, 1]),
+        det.radius, np.sin(sources.theta), np.cos(sources.theta), np.cos(sources.phi),
+        np.sin(sources.phi), mu, np.array(sources.rate), bkg,
+        inst.angular_speed, phase, a, b, L, h, thin_opaque,
+    )
+    per_batch = max(1, _OBS_BATCH_PHOTONS // max(chunk_size, 1))
+    out_t, out_d, out_s = [], [], []
+    total_ms = round(1e3 * float(np.sum(g[:, 1] - g[:, 0])))
+    update, close = _progress_fn(progress, total_ms, "MC observation")
+    done = 0.0
+    try:
+        for s in range(0, pc.shape[0], per_batch):
+            p = pc[s : s + per_batch]
+            st_n = chunk_states(root, p.shape[0])
+            st_p = chunk_states(root, p.shape[0])
+            tot = np.zeros(p.shape[0], np.int64)
+            tr.observation_count_kernel(
+                p[:, 0].copy(), p[:, 1].copy(), st_n, np.array(sources.rate), bkg, n_det, tot
+            )
+            offset = np.concatenate([[0], np.cumsum(tot)[:-1]]).astype(np.int64)
+            n_tot = int(tot.sum())
+            bt = np.empty(n_tot)
+            bd = np.empty(n_tot, np.int32)
+            bs = np.empty(n_tot, np.int32)
+            n_out = np.zeros(p.shape[0], np.int64)
+            tr.observation_kernel(
+                p[:, 0].copy(), p[:, 1].copy(), st_n, st_p, offset, *geom, bt, bd, bs, n_out
+            )
+            keep = np.concatenate(
+                [np.arange(o, o + k) for o, k in zip(offset, n_out, strict=True)]
+            ) if p.shape[0] else np.zeros(0, np.int64)
+            out_t.append(bt[keep])
+            out_d.append(bd[keep])
+            out_s.append(bs[keep])
+            done += float(np.sum(p[:, 1] - p[:, 0]))
+            update(round(1e3 * done), total_ms)
+    finally:
+        close()
+    time = np.concatenate(out_t)
+    order = np.argsort(time, kind="stable")
+    src = np.concatenate(out_s)[order]
+    energy = np.where(src >= 0, sources.energy[np.maximum(src, 0)], e_bkg).astype(np.float32)
+    log.debug("simulate_observation: %d events in %d time pieces", time.size, pc.shape[0])
+    return EventList(
+        time[order], np.concatenate(out_d)[order], energy, inst, g, phase, t0, t1,
+        src, sources, dict(meta or {}),
+    )

@@ -1,0 +1,118 @@
+"""Point sources at infinity: the input of the Monte Carlo's observation mode."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import astropy.units as u
+import numpy as np
+
+from rotmod._validate import as_array
+from rotmod.errors import ParameterError
+
+__all__ = ["PointSources"]
+
+#: Largest zenith angle accepted (rad): tan(theta) must stay finite.
+THETA_MAX = np.pi / 2
+
+
+def _broadcast(name: str, arr: np.ndarray, n: int) -> np.ndarray:
+    if arr.size == 1:
+        return np.full(n, float(arr.ravel()[0]))
+    if arr.shape != (n,):
+        raise ParameterError(f"{name} must have one value per source ({n}), got shape {arr.shape}")
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class PointSources:
+    """A list of point sources at infinity, each a plane wave of photons.
+
+    Parameters
+    ----------
+    theta, phi : array_like or Quantity, shape (n,)
+        Zenith (0 <= theta < 90 deg) and azimuth of each source (rad if plain numbers),
+        following :mod:`rotmod.conventions`.
+    rate : array_like or Quantity, shape (n,) or scalar
+        Photons per second incident on *each* detector face with no mask (1/s), >= 0.
+    energy : array_like or Quantity, shape (n,) or scalar
+        Photon energy of each source (keV), > 0 (lines; the mask attenuation is evaluated
+        at it).
+
+    Examples
+    --------
+    >>> src = PointSources(np.radians([6.0]), [0.0], rate=100.0, energy=662.0)
+    >>> len(src)
+    1
+    """
+
+    theta: np.ndarray
+    phi: np.ndarray
+    rate: Any = 1.0
+    energy: Any = 662.0
+
+    def __post_init__(self) -> None:
+        th = as_array(self.theta, "theta", u.rad, lo=0.0, hi=THETA_MAX, hi_open=True, ndim=1)
+        ph = as_array(self.phi, "phi", u.rad, ndim=1)
+        n = max(th.size, ph.size)
+        if n == 0:
+            raise ParameterError("sources must contain at least one source, got 0")
+        th = _broadcast("theta", th, n)
+        ph = _broadcast("phi", ph, n)
+        rate = _broadcast("rate", as_array(self.rate, "rate", 1 / u.s, lo=0.0, ndim=1), n)
+        energy = _broadcast(
+            "energy", as_array(self.energy, "energy", u.keV, lo=0.0, lo_open=True, ndim=1), n
+        )
+        for name, arr in (("theta", th), ("phi", ph), ("rate", rate), ("energy", energy)):
+            arr = np.array(arr, dtype=float)
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+
+    def __len__(self) -> int:
+        return self.theta.size
+
+    @classmethod
+    def from_image(
+        cls, theta: Any, phi: Any, image: Any, *, energy: Any = 662.0, keep_zero: bool = False
+    ) -> PointSources:
+        """Sources from a sky image given as pixel directions and rates.
+
+        Parameters
+        ----------
+        theta, phi : array_like or Quantity
+            Direction of each pixel centre (any shape; e.g. from a sky grid's
+            ``directions()``), rad if plain numbers.
+        image : array_like or Quantity
+            Rate of each pixel (photons/s on each detector face with no mask), same size.
+        energy : float or Quantity
+            Photon energy (keV).
+        keep_zero : bool
+            Keep pixels of zero rate (default: drop them, they emit nothing).
+        """
+        th = np.ravel(as_array(theta, "theta", u.rad))
+        ph = np.ravel(as_array(phi, "phi", u.rad))
+        img = np.ravel(as_array(image, "image", 1 / u.s, lo=0.0))
+        if not (th.size == ph.size == img.size):
+            raise ParameterError(
+                f"theta, phi and image must have the same size, got {th.size}, {ph.size} "
+                f"and {img.size}"
+            )
+        keep = np.ones(img.size, bool) if keep_zero else img > 0
+        if not keep.any():
+            raise ParameterError("image must have at least one pixel with rate > 0")
+        return cls(th[keep], ph[keep], img[keep], energy)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain lists (rad, 1/s, keV) for metadata."""
+        return {
+            "theta": self.theta.tolist(),
+            "phi": self.phi.tolist(),
+            "rate": self.rate.tolist(),
+            "energy": self.energy.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PointSources:
+        """Inverse of :meth:`to_dict`."""
+        return cls(d["theta"], d["phi"], d["rate"], d["energy"])

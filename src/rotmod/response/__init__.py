@@ -1,0 +1,24 @@
+"""The response: a linear operator from sky to folded counts (``O = P S``).
+
+* :class:`TimeBinning` -- mask-angle bins per rotation (bin centre or bin average);
+* :func:`build_response` -- compute ``P[d, t, n]`` with any profile model and hold it in
+  memory as a :class:`MaterialisedResponse`;
+* :class:`MatrixFreeResponse` -- the same operator computing blocks of ``P`` on the fly;
+* storage in :mod:`rotmod.io.response`.
+
+Reconstruction sees only :class:`ResponseOperator` (``forward``, ``adjoint``,
+``sensitivity``, ``as_linear_operator``).
+"""
+
+from rotmod.response.binning import TimeBinning
+from rotmod.response.materialised import MaterialisedResponse, build_response
+from rotmod.response.matrix_free import MatrixFreeResponse
+from rotmod.response.operator import ResponseOperator
+
+__all__ = [
+    "MaterialisedResponse",
+    "MatrixFreeResponse",
+    "ResponseOperator",
+    "TimeBinning",
+    "build_response",
+]

@@ -1,0 +1,199 @@
+"""The response as a stored matrix ``P[d, t, n]``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rotmod.errors import ParameterError
+from rotmod.profiles.base import ProfileModel
+from rotmod.response._plan import ResponsePlan, make_plan
+from rotmod.response.operator import ResponseOperator
+
+__all__ = ["MaterialisedResponse", "build_response"]
+
+
+class MaterialisedResponse(ResponseOperator):
+    """A response held in memory as ``P[d, t, n]``.
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (n_det, n_time, n_sky)
+        The response, float32 or float64 (other types are refused; the array is used as
+        is, without a copy, when it is C-contiguous).
+    instrument, grid, time_bins, model, energy : optional
+        What the matrix was computed for (metadata only; see
+        :meth:`ResponseOperator.metadata`).  ``model`` may be a registry name or instance.
+
+    Raises
+    ------
+    ParameterError
+        If ``matrix`` is not a 3-D float32/float64 array.
+
+    Notes
+    -----
+    With ``A = P.reshape(n_det * n_time, n_sky)``, ``forward(S) = (A S).reshape(n_det,
+    n_time)`` and ``adjoint(Y) = Y.ravel() A``: one BLAS matrix-vector product each, in the
+    matrix's dtype (inputs are cast to it).
+    """
+
+    def __init__(
+        self,
+        matrix: np.ndarray,
+        *,
+        instrument: Any = None,
+        grid: Any = None,
+        time_bins: Any = None,
+        model: str | ProfileModel | None = None,
+        energy: float | None = None,
+    ) -> None:
+        m = np.asarray(matrix)
+        if m.ndim != 3:
+            raise ParameterError(f"matrix must have shape (n_det, n_time, n_sky), got {m.shape}")
+        if m.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
+            raise ParameterError(f"matrix must be float32 or float64, got {m.dtype}")
+        self.matrix = np.ascontiguousarray(m)
+        self.n_det, self.n_time, self.n_sky = (int(v) for v in m.shape)
+        self.dtype = m.dtype
+        _set_metadata(self, instrument, grid, time_bins, model, energy)
+
+    @property
+    def _flat(self) -> np.ndarray:
+        return self.matrix.reshape(self.n_det * self.n_time, self.n_sky)
+
+    def _forward(self, sky: np.ndarray) -> np.ndarray:
+        x = np.asarray(sky, dtype=self.dtype)
+        return (self._flat @ x).reshape(self.n_det, self.n_time)
+
+    def _adjoint(self, counts: np.ndarray) -> np.ndarray:
+        y = np.asarray(counts, dtype=self.dtype).ravel()
+        return y @ self._flat
+
+    def todense(self) -> np.ndarray:
+        """The matrix ``P[d, t, n]`` (no copy)."""
+        return self.matrix
+
+
+def _set_metadata(
+    op: ResponseOperator,
+    instrument: Any,
+    grid: Any,
+    time_bins: Any,
+    model: Any,
+    energy: Any,
+) -> None:
+    """Check the shapes implied by the metadata against the operator and attach it."""
+    from rotmod.geometry import Instrument
+    from rotmod.profiles.base import get_model
+    from rotmod.response.binning import TimeBinning
+
+    if instrument is not None:
+        if not isinstance(instrument, Instrument):
+            raise ParameterError(
+                f"instrument must be an Instrument, got {type(instrument).__name__}"
+            )
+        if len(instrument.detectors) != op.n_det:
+            raise ParameterError(
+                f"instrument has {len(instrument.detectors)} detectors but the response has "
+                f"n_det = {op.n_det}"
+            )
+    if grid is not None and int(grid.size) != op.n_sky:
+        raise ParameterError(f"grid has {grid.size} pixels but the response has n_sky = {op.n_sky}")
+    if time_bins is not None:
+        time_bins = TimeBinning.coerce(time_bins)
+        if time_bins.n_bins != op.n_time:
+            raise ParameterError(
+                f"time_bins has {time_bins.n_bins} bins but the response has "
+                f"n_time = {op.n_time}"
+            )
+    op.instrument = instrument
+    op.grid = grid
+    op.time_bins = time_bins
+    op.model = None if model is None else get_model(model)
+    op.energy = None if energy is None else float(energy)
+
+
+def _fill(plan: ResponsePlan, out: np.ndarray, *, max_block_bytes: int = 64 << 20) -> None:
+    """Fill ``out = P`` from ``plan`` locally (numba threads inside each kernel call)."""
+    nd, nt, nn = plan.shape
+    if plan.time_bins.n_sub == 1:
+        plan.block(out=out)
+        return
+    # Average mode keeps two float64 temporaries per block: bound them by time blocks.
+    per_bin = 16 * nd * nn
+    step = max(1, min(nt, max_block_bytes // max(per_bin, 1)))
+    for t0 in range(0, nt, step):
+        t1 = min(nt, t0 + step)
+        out[:, t0:t1, :] = plan.block(t=(t0, t1))
+
+
+def build_response(
+    instrument: Any,
+    grid: Any,
+    time_bins: Any,
+    model: str | ProfileModel = "advanced-approx",
+    energy: Any = None,
+    *,
+    dtype: Any = np.float32,
+    detectors: Any = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    progress: bool = False,
+    block_size: tuple[int, int] | None = None,
+) -> MaterialisedResponse:
+    """Compute the response ``P[d, t, n]`` of ``instrument`` on ``grid`` and hold it in memory.
+
+    Parameters
+    ----------
+    instrument : Instrument
+    grid : SkyGrid
+        Sky pixels; ``n`` runs over ``grid.directions()`` (C order).
+    time_bins : TimeBinning or int
+        Mask-angle binning (an int means that many centre-mode bins).
+    model : str or ProfileModel
+        Registry name (``"standard"``, ``"advanced"``, ``"advanced-approx"``,
+        ``"advanced-g0"``, ``"exact"``) or an instance.
+    energy : float or Quantity, optional
+        Photon energy (keV); needed unless the mask's attenuation is fixed.
+    dtype : {float32, float64}
+        Storage type of the matrix (the kernels compute in float64).
+    detectors : sequence of int, optional
+        Indices of the detectors to include (default all); the response's ``instrument``
+        then holds only those detectors, in that order.
+    scheduler, client : optional
+        Compute the blocks on a Dask cluster (address string or ``distributed.Client``);
+        default: local threads.
+    progress : bool
+        Show a tqdm progress bar (distributed or blocked computations only).
+    block_size : (int, int), optional
+        ``(time bins, sky pixels)`` per block for the distributed path
+        (default: chosen for ~32 MB blocks).
+
+    Returns
+    -------
+    MaterialisedResponse
+
+    Raises
+    ------
+    ParameterError, MaterialError, ModelValidityError
+    """
+    plan = make_plan(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors)
+    out = np.empty(plan.shape, dtype=plan.dtype)
+    if scheduler is None and client is None and not progress:
+        _fill(plan, out)
+    else:
+        from rotmod.parallel import compute_blocks
+
+        compute_blocks(
+            plan, out, scheduler=scheduler, client=client, progress=progress,
+            block_size=block_size,
+        )
+    return MaterialisedResponse(
+        out,
+        instrument=plan.instrument,
+        grid=grid,
+        time_bins=plan.time_bins,
+        model=plan.model,
+        energy=plan.energy,
+    )

@@ -1,0 +1,265 @@
+"""The response operator: binning, materialised and matrix-free implementations."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.sparse.linalg import lsqr
+
+from rotmod import DetectorArray, Instrument
+from rotmod.errors import ModelValidityError, ParameterError
+from rotmod.profiles import get_model
+from rotmod.response import (
+    MaterialisedResponse,
+    MatrixFreeResponse,
+    TimeBinning,
+    build_response,
+)
+from rotmod.sky import SkyGrid
+
+
+@pytest.fixture(scope="module")
+def inst():
+    """The paper's lead mask over a 7-detector hexagonal array (c = 3.8 cm < a = 4 cm)."""
+    base = Instrument.paper()
+    return Instrument(base.mask, DetectorArray.hexagonal(3.8, rings=1))
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return SkyGrid((9, 8), 1.0)
+
+
+@pytest.fixture(scope="module")
+def mat(inst, grid):
+    return build_response(inst, grid, 48, dtype=np.float64)
+
+
+# ------------------------------------------------------------------------- time binning
+def test_time_binning_angles():
+    tb = TimeBinning(8)
+    np.testing.assert_allclose(tb.edges(), np.linspace(0, 2 * np.pi, 9))
+    np.testing.assert_allclose(tb.angles(), (np.arange(8) + 0.5) * np.pi / 4)
+    assert tb.sub_angles().shape == (1, 8)
+    av = TimeBinning(8, "average", n_sub=4)
+    sub = av.sub_angles()
+    assert sub.shape == (4, 8)
+    # Sub-samples lie inside their bin and average to the bin centre.
+    assert np.all((sub >= av.edges()[:-1]) & (sub < av.edges()[1:]))
+    np.testing.assert_allclose(sub.mean(axis=0), av.angles(), rtol=1e-14)
+    assert TimeBinning.from_dict(av.to_dict()) == av
+    np.testing.assert_array_equal(tb.bin_of([0.0, 2 * np.pi - 1e-12, 2 * np.pi]), [0, 7, 0])
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        ((0,), "time_bins.n_bins"),
+        ((2.5,), "time_bins.n_bins"),
+        ((8, "middle"), "time_bins.mode"),
+        ((8, "average", 0), "time_bins.n_sub"),
+    ],
+)
+def test_time_binning_errors(args, match):
+    with pytest.raises(ParameterError, match=match):
+        TimeBinning(*args)
+
+
+def test_average_of_constant_in_bin_profile():
+    """A point source on the axis has a constant profile: every bin average equals it."""
+    inst = Instrument.paper()
+    grid = SkyGrid((1, 1), 0.1)  # one pixel, on the axis
+    c = build_response(inst, grid, 24, "advanced-approx", dtype=np.float64)
+    a = build_response(inst, grid, TimeBinning(24, "average", 5), dtype=np.float64)
+    # On the axis uc = s = 0 for every mask angle, so the profile is exactly constant.
+    np.testing.assert_allclose(a.matrix, c.matrix, rtol=0, atol=1e-15)
+    assert np.ptp(c.matrix) < 1e-15
+
+
+def test_average_converges_with_n_sub(inst, grid):
+    model = get_model("advanced-approx")
+    theta, phi = grid.directions()
+    tb = TimeBinning(24)
+    # Reference bin means from a dense midpoint rule (400 samples per bin).
+    dense = TimeBinning(24, "average", 400).sub_angles()
+    ref = model.profile(inst, theta, phi, dense.T.ravel()).reshape(7, 24, 400, -1).mean(axis=2)
+    errs = []
+    for n_sub in (1, 2, 4, 8, 16):
+        r = build_response(inst, grid, TimeBinning(24, "average", n_sub), dtype=np.float64)
+        errs.append(np.abs(r.matrix - ref).max())
+    # n_sub = 1 is the bin centre.
+    c = build_response(inst, grid, tb, dtype=np.float64)
+    np.testing.assert_array_equal(
+        build_response(inst, grid, TimeBinning(24, "average", 1), dtype=np.float64).matrix,
+        c.matrix,
+    )
+    # The profile has kinks (slat edges), so the midpoint rule converges at first to second
+    # order; require a monotonic decrease and a >10x gain from 1 to 16 sub-samples.
+    assert all(e2 < e1 for e1, e2 in itertools.pairwise(errs))
+    assert errs[-1] < errs[0] / 10
+
+
+# ------------------------------------------------------------------ materialised response
+def test_columns_equal_model_profile(inst, grid, mat):
+    theta, phi = grid.directions()
+    model = get_model("advanced-approx")
+    for n in (0, 17, 40, 71):
+        col = model.profile(inst, theta[n], phi[n], TimeBinning(48).angles())[:, :, 0]
+        # Same kernel on the same float64 inputs; the kernels may vectorise over the sky
+        # axis (SIMD lanes vs scalar tail), which changes the last bit or two: 1e-14.
+        np.testing.assert_allclose(mat.matrix[:, :, n], col, rtol=0, atol=1e-14)
+
+
+def test_metadata(inst, grid, mat):
+    md = mat.metadata()
+    assert md["instrument"] == inst.to_dict()
+    assert md["grid"] == grid.to_dict()
+    assert md["time_bins"] == {"n_bins": 48, "mode": "center", "n_sub": 1}
+    assert md["model"]["model"] == "advanced-approx"
+    assert md["dtype"] == "float64"
+    assert md["shape"] == [7, 48, 72]
+
+
+def test_float32_and_detector_subset(inst, grid, mat):
+    r32 = build_response(inst, grid, 48)
+    assert r32.matrix.dtype == np.float32
+    # float32 storage of values in [0, 1]: rounding <= 2^-24.
+    np.testing.assert_allclose(r32.matrix, mat.matrix, atol=6e-8, rtol=0)
+    sub = build_response(inst, grid, 48, detectors=[3, 0], dtype=np.float64)
+    assert len(sub.instrument.detectors) == 2
+    np.testing.assert_array_equal(sub.matrix, mat.matrix[[3, 0]])
+    x = np.ones(72)
+    assert r32.forward(x).dtype == np.float32
+    assert r32.adjoint(np.ones((7, 48))).dtype == np.float32
+
+
+def _dot_test(op, rng, rtol):
+    x = rng.random(op.n_sky)
+    y = rng.random((op.n_det, op.n_time))
+    lhs = float(np.vdot(op.forward(x).astype(np.float64), y))
+    rhs = float(np.vdot(x, op.adjoint(y).astype(np.float64)))
+    assert lhs == pytest.approx(rhs, rel=rtol)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_dot_test_materialised(mat, seed):
+    # float64 sums of ~24000 positive terms: relative rounding ~1e-15; allow 1e-12.
+    _dot_test(mat, np.random.default_rng(seed), 1e-12)
+
+
+def test_dot_test_float32(inst, grid):
+    r = build_response(inst, grid, 48)
+    # float32 BLAS sums of up to 336 terms: relative error ~ 336 * 6e-8 worst case.
+    _dot_test(r, np.random.default_rng(1), 3e-5)
+
+
+def test_sensitivity(mat):
+    np.testing.assert_allclose(mat.sensitivity(), mat.matrix.sum(axis=(0, 1)), rtol=1e-12)
+
+
+def test_bad_products(mat):
+    with pytest.raises(ParameterError, match="sky must have shape"):
+        mat.forward(np.ones(5))
+    with pytest.raises(ParameterError, match="counts must have shape"):
+        mat.adjoint(np.ones((7, 3)))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        ({"model": "nope"}, ParameterError, "model must be one of"),
+        ({"dtype": np.int32}, ParameterError, "dtype must be float32 or float64"),
+        ({"detectors": [9]}, ParameterError, "detectors must be indices"),
+        ({"time_bins": "x"}, ParameterError, "time_bins must be"),
+        ({"grid": "x"}, ParameterError, "grid must be a sky grid"),
+        ({"instrument": None}, ParameterError, "instrument must be an Instrument"),
+        ({"energy": -5.0}, ParameterError, "energy must be > 0"),
+    ],
+)
+def test_build_errors(inst, grid, kwargs, exc, match):
+    args = {"instrument": inst, "grid": grid, "time_bins": 8} | kwargs
+    with pytest.raises(exc, match=match):
+        build_response(**args)
+
+
+def test_model_validity_refused():
+    # Thick slats: h tan(theta) > a at the field edge; the advanced model refuses.
+    inst = Instrument.paper(h=60.0)
+    with pytest.raises(ModelValidityError, match="advanced model needs"):
+        build_response(inst, SkyGrid((4, 4), 2.0), 8)
+
+
+def test_materialised_errors():
+    with pytest.raises(ParameterError, match="matrix must have shape"):
+        MaterialisedResponse(np.ones((3, 4)))
+    with pytest.raises(ParameterError, match="matrix must be float32 or float64"):
+        MaterialisedResponse(np.ones((1, 3, 4), dtype=np.int64))
+    with pytest.raises(ParameterError, match="grid has 16 pixels"):
+        MaterialisedResponse(np.ones((1, 3, 4)), grid=SkyGrid((4, 4), 1.0))
+
+
+# --------------------------------------------------------------------- matrix-free response
+@pytest.fixture(scope="module")
+def mfree(inst, grid):
+    # Small blocks so that several time and sky blocks (with ragged ends) are exercised.
+    return MatrixFreeResponse(inst, grid, 48, block_size=(10, 30))
+
+
+def test_matrix_free_equals_materialised(mat, mfree):
+    rng = np.random.default_rng(3)
+    x = rng.random(72)
+    y = rng.random((7, 48))
+    # Same kernel values; only the summation order differs (blocks): float64 rounding.
+    np.testing.assert_allclose(mfree.forward(x), mat.forward(x), rtol=1e-12)
+    np.testing.assert_allclose(mfree.adjoint(y), mat.adjoint(y), rtol=1e-12)
+    f, a = mfree.forward_adjoint(x, y)
+    np.testing.assert_array_equal(f, mfree.forward(x))
+    np.testing.assert_array_equal(a, mfree.adjoint(y))
+    np.testing.assert_allclose(mfree.materialise().matrix, mat.matrix, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(mfree.sensitivity(), mat.sensitivity(), rtol=1e-12)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_dot_test_matrix_free(mfree, seed):
+    _dot_test(mfree, np.random.default_rng(seed), 1e-12)
+
+
+def test_matrix_free_average_mode(inst, grid):
+    tb = TimeBinning(12, "average", 3)
+    m = MatrixFreeResponse(inst, grid, tb, block_size=(5, 50))
+    ref = build_response(inst, grid, tb, dtype=np.float64)
+    # Different block shapes: last-bit differences from SIMD vectorisation only.
+    np.testing.assert_allclose(m.materialise().matrix, ref.matrix, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("op_name", ["mat", "mfree"])
+def test_lsqr_recovers_sky(request, op_name):
+    op = request.getfixturevalue(op_name)
+    sky = np.zeros(op.n_sky)
+    sky[[5, 30, 61]] = [1.0, 2.0, 0.5]
+    data = op.forward(sky).ravel()
+    lin = op.as_linear_operator()
+    sol = lsqr(lin, data, atol=1e-12, btol=1e-12, iter_lim=2000)[0]
+    # Noise-free data and a well-posed small problem (504 equations, 72 unknowns): the
+    # least-squares solution is the sky itself up to the solver's tolerance.
+    np.testing.assert_allclose(sol, sky, atol=1e-4)
+
+
+def test_other_models_build(inst, grid):
+    theta, phi = grid.directions()
+    xi = TimeBinning(16).angles()
+    for name in ("advanced-g0", "exact"):
+        r = build_response(inst, grid, 16, name, dtype=np.float64)
+        p = get_model(name).profile(inst, theta, phi, xi)
+        np.testing.assert_allclose(r.matrix, p, rtol=0, atol=1e-14)  # same kernel call
+
+
+def test_block_size_errors(inst, grid):
+    with pytest.raises(ParameterError, match="block_size"):
+        MatrixFreeResponse(inst, grid, 8, block_size=(0, 4))

@@ -1,0 +1,150 @@
+"""Response storage: round trip, mismatch refusal, atomic and resumable writes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rotmod import DetectorArray, Instrument
+from rotmod.errors import InstrumentMismatchError, ParameterError
+from rotmod.io.response import (
+    StoredResponse,
+    load_response,
+    open_response,
+    save_response,
+    write_response,
+)
+from rotmod.response import TimeBinning, build_response
+from rotmod.sky import SkyGrid
+
+
+@pytest.fixture(scope="module")
+def inst():
+    base = Instrument.paper()
+    return Instrument(base.mask, DetectorArray.hexagonal(3.8, rings=1))
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return SkyGrid((6, 7), 1.0)
+
+
+@pytest.fixture(scope="module")
+def ref(inst, grid):
+    return build_response(inst, grid, 20)
+
+
+def test_save_load_round_trip(tmp_path, inst, grid, ref):
+    path = tmp_path / "r.zarr"
+    stored = save_response(path, ref, chunks=(6, 20))
+    assert isinstance(stored, StoredResponse)
+    assert stored.array.chunks == (7, 6, 20)
+    loaded = load_response(path, instrument=inst, grid=grid, time_bins=20,
+                           model="advanced-approx")
+    np.testing.assert_array_equal(loaded.matrix, ref.matrix)
+    assert loaded.matrix.dtype == np.float32
+    assert loaded.instrument == inst and loaded.grid == grid
+    assert loaded.time_bins == TimeBinning(20)
+    assert loaded.model.describe() == ref.model.describe()
+    md = stored.metadata()
+    assert md["instrument"] == inst.to_dict() and md["rotmod_version"]
+    # The lazy operator streams chunks; float32 sums in another order: ~1e-6 relative.
+    x = np.random.default_rng(0).random(42)
+    np.testing.assert_allclose(stored.forward(x), ref.forward(x), rtol=1e-5)
+    y = np.random.default_rng(1).random((7, 20))
+    np.testing.assert_allclose(stored.adjoint(y), ref.adjoint(y), rtol=1e-5)
+
+
+def test_overwrite(tmp_path, ref):
+    path = tmp_path / "r.zarr"
+    save_response(path, ref)
+    with pytest.raises(ParameterError, match="already exists"):
+        save_response(path, ref)
+    save_response(path, ref, overwrite=True)
+    assert not (tmp_path / "r.zarr.old").exists()
+
+
+@pytest.mark.parametrize(
+    ("field", "kwargs"),
+    [
+        (
+            "instrument.mask.thickness",
+            {"instrument": Instrument(
+                Instrument.paper(h=2.5).mask, DetectorArray.hexagonal(3.8, rings=1)
+            )},
+        ),
+        ("grid.pixel_size", {"grid": SkyGrid((6, 7), 1.1)}),
+        ("time_bins.n_bins", {"time_bins": 21}),
+        ("time_bins.mode", {"time_bins": TimeBinning(20, "average")}),
+        ("model.model", {"model": "exact"}),
+        ("energy", {"energy": 511.0}),
+    ],
+)
+def test_mismatch_refused(tmp_path, ref, field, kwargs):
+    path = tmp_path / "r.zarr"
+    save_response(path, ref)
+    with pytest.raises(InstrumentMismatchError, match=field.replace(".", r"\.")):
+        open_response(path, **kwargs)
+
+
+def test_detector_mismatch_named(tmp_path, inst, ref):
+    path = tmp_path / "r.zarr"
+    save_response(path, ref)
+    other = Instrument(inst.mask, DetectorArray.hexagonal(3.8, rings=1, pitch=4.2))
+    with pytest.raises(InstrumentMismatchError, match=r"instrument\.detectors\.positions"):
+        open_response(path, instrument=other)
+
+
+class Interrupt(RuntimeError):
+    pass
+
+
+def test_interrupted_write_resumes(tmp_path, inst, grid):
+    path = tmp_path / "w.zarr"
+    partial = tmp_path / "w.zarr.partial"
+    full = build_response(inst, grid, TimeBinning(20, "average", 2))
+    seen = []
+
+    def stop_after_3(done, total):
+        seen.append(done)
+        if done == 3:
+            raise Interrupt("stop")
+
+    with pytest.raises(Interrupt):
+        write_response(path, inst, grid, TimeBinning(20, "average", 2), chunks=(4, 20),
+                       on_chunk=stop_after_3)
+    # Nothing at the final name; the half-written store is refused by the readers.
+    assert not path.exists() and partial.exists()
+    with pytest.raises(ParameterError, match="unfinished"):
+        open_response(path)
+    with pytest.raises(ParameterError, match="must not end with"):
+        open_response(partial)
+    # Resuming with other inputs is refused, naming the field.
+    with pytest.raises(InstrumentMismatchError, match=r"time_bins\.n_sub"):
+        write_response(path, inst, grid, TimeBinning(20, "average", 3), chunks=(4, 20))
+    resumed = []
+    out = write_response(path, inst, grid, TimeBinning(20, "average", 2),
+                         on_chunk=lambda d, t: resumed.append(d))
+    # 5 x 3 = 15 chunks: 3 done before the interruption, 12 computed on resume.
+    assert resumed == list(range(4, 16))
+    assert not partial.exists()
+    # Chunked vs one-call evaluation: the kernels may round the last float64 bit
+    # differently (SIMD lanes), which can flip one float32 ulp (<= 6e-8 for values <= 1).
+    np.testing.assert_allclose(out.load().matrix, full.matrix, rtol=0, atol=6e-8)
+
+
+def test_write_response_matches_build(tmp_path, inst, grid, ref):
+    out = write_response(tmp_path / "a.zarr", inst, grid, 20, progress=False)
+    np.testing.assert_allclose(out.load().matrix, ref.matrix, rtol=0, atol=6e-8)  # as above
+    with pytest.raises(ParameterError, match="already exists"):
+        write_response(tmp_path / "a.zarr", inst, grid, 20)
+
+
+def test_open_errors(tmp_path):
+    with pytest.raises(ParameterError, match="does not exist"):
+        open_response(tmp_path / "nothing.zarr")
+    import zarr
+
+    zarr.open_group(str(tmp_path / "other.zarr"), mode="w")
+    with pytest.raises(ParameterError, match="not a rotmod response store"):
+        open_response(tmp_path / "other.zarr")

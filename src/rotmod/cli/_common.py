@@ -1,0 +1,191 @@
+"""Helpers shared by the subcommands: instrument, sources, energies, outputs, progress."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rotmod.errors import RotmodError
+
+
+class UserError(RotmodError):
+    """A mistake on the command line that argparse cannot see (bad file, bad combination)."""
+
+
+def add_instrument(p: argparse.ArgumentParser, *, default: str | None = "paper") -> None:
+    """``--instrument FILE|PRESET`` (and ``--energy``)."""
+    p.add_argument(
+        "-i", "--instrument", default=default, metavar="FILE|PRESET",
+        help="instrument description (TOML/YAML file) or preset name "
+        f"(paper, prototype){'; default ' + default if default else ''}",
+    )
+
+
+def add_energy(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-e", "--energy", type=float, default=None, metavar="KEV",
+                   help="photon energy (keV); default the instrument file's first energy")
+
+
+def add_progress(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="show a progress bar (default: when stderr is a terminal)")
+
+
+def add_output(p: argparse.ArgumentParser, *, required: bool = True, help: str = "output file",
+               default: str | None = None) -> None:
+    p.add_argument("-o", "--output", required=required and default is None, default=default,
+                   metavar="PATH", help=help)
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+
+
+def load_config(args: argparse.Namespace) -> Any:
+    from rotmod.config import load_instrument_config
+
+    return load_instrument_config(args.instrument)
+
+
+def energy_of(args: argparse.Namespace, cfg: Any) -> float:
+    if args.energy is not None:
+        if not np.isfinite(args.energy) or args.energy <= 0:
+            raise UserError(f"--energy: must be > 0 keV, got {args.energy:g} keV")
+        return float(args.energy)
+    return float(cfg.energies_kev[0])
+
+
+def progress_wanted(args: argparse.Namespace) -> bool:
+    flag = getattr(args, "progress", None)
+    if flag is None:
+        return sys.stderr.isatty()
+    return bool(flag)
+
+
+def parse_source(text: str, *, with_rate: bool = False) -> tuple[float, ...]:
+    """``THETA,PHI`` (deg) or ``THETA,PHI,RATE`` (deg, deg, 1/s) from the command line."""
+    parts = [x.strip() for x in text.split(",")]
+    want = "THETA,PHI,RATE" if with_rate else "THETA,PHI"
+    if len(parts) not in ((2, 3) if with_rate else (2,)):
+        raise argparse.ArgumentTypeError(
+            f"must be {want} (degrees{', photons/s' if with_rate else ''}), got {text!r}"
+        )
+    try:
+        vals = tuple(float(x) for x in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be numbers {want}, got {text!r}") from None
+    if not all(np.isfinite(vals)):
+        raise argparse.ArgumentTypeError(f"must be finite numbers {want}, got {text!r}")
+    if not 0 <= vals[0] < 90:
+        raise argparse.ArgumentTypeError(f"zenith must be in [0, 90) deg, got {vals[0]:g}")
+    if with_rate and len(vals) == 3 and vals[2] < 0:
+        raise argparse.ArgumentTypeError(f"rate must be >= 0 photons/s, got {vals[2]:g}")
+    return vals
+
+
+def source_arg(with_rate: bool = False) -> Callable[[str], tuple[float, ...]]:
+    def conv(text: str) -> tuple[float, ...]:
+        return parse_source(text, with_rate=with_rate)
+
+    conv.__name__ = "source"
+    return conv
+
+
+def parse_range(text: str) -> np.ndarray:
+    """``START:STOP:NUM`` (inclusive, NUM values) or a comma list ``1,2,4``."""
+    try:
+        if ":" in text:
+            parts = text.split(":")
+            if len(parts) != 3:
+                raise ValueError
+            lo, hi, n = float(parts[0]), float(parts[1]), int(parts[2])
+            if n < 1:
+                raise ValueError
+            return np.linspace(lo, hi, n)
+        return np.array([float(x) for x in text.split(",") if x.strip()])
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be START:STOP:NUM or a comma-separated list, got {text!r}"
+        ) from None
+
+
+def check_output(path: str | os.PathLike, overwrite: bool, *, what: str = "output") -> Path:
+    """Refuse to overwrite unless asked, and make sure the folder exists."""
+    p = Path(path)
+    if p.exists() and not overwrite:
+        raise UserError(f"{what} {str(p)!r} exists; pass --overwrite to replace it")
+    if not p.parent.exists():
+        raise UserError(f"{what} {str(p)!r}: folder {str(p.parent)!r} does not exist")
+    return p
+
+
+def check_input(path: str | os.PathLike, what: str = "input") -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise UserError(f"{what} {str(p)!r} does not exist")
+    return p
+
+
+def write_table(table: Any, path: Path) -> Path:
+    """Write an astropy table as ECSV (``.ecsv``) or CSV (anything else), atomically."""
+    import tempfile
+
+    fmt = "ascii.ecsv" if path.suffix.lower() == ".ecsv" else "ascii.csv"
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        table.write(tmp, format=fmt, overwrite=True)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def save_figure(fig: Any, path: Path, dpi: int = 120) -> Path:
+    """Save and close a matplotlib figure atomically (Agg backend)."""
+    import tempfile
+
+    import matplotlib.pyplot as plt
+
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".png",
+                               dir=path.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    finally:
+        plt.close(fig)
+    return path
+
+
+def use_agg() -> None:
+    """Select the non-interactive backend (files only)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+
+
+def tqdm_progress(total: int, desc: str, unit: str = "it") -> tuple[Callable, Callable]:
+    """A ``(update(done, total), close())`` pair drawing a tqdm bar on stderr."""
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
+
+    def update(done: int, tot: int) -> None:
+        if bar.total != tot:
+            bar.total = tot
+        bar.update(done - bar.n)
+
+    return update, bar.close
+
+
+def say(msg: str) -> None:
+    """One line of status on stderr (stdout stays for results)."""
+    print(msg, file=sys.stderr, flush=True)

@@ -1,0 +1,801 @@
+"""``rotmod reproduce``: regenerate the seed paper's results into a folder with an HTML report.
+
+Steps (each writes into ``<out>/<step>/`` through a temporary folder renamed at the end, so
+an interrupted step leaves nothing that looks finished; a rerun skips steps whose
+``result.json`` exists unless ``force``):
+
+``profiles``
+    Every validation scenario of :mod:`rotmod.validation` (the paper's Figs. 4-8 set-ups,
+    the two imaging set-ups and four geometries outside the advanced model's validity):
+    Monte Carlo vs standard vs advanced vs exact, figures and chi-square per model.
+``speed``
+    Time to compute one detector's response for 4900 sky bins x 560 time bins with the
+    standard, advanced G0, advanced G1~ and exact models (median of several runs) and the
+    Monte Carlo time to reach SNR 10 per time bin (from its measured photon rate), beside
+    the paper's IDL figures.
+``images``
+    The paper's three image figures (122 keV, 2 cm; 662 keV, 5 mm; 662 keV at 48 deg, 2 cm):
+    Monte Carlo observations reconstructed with the standard, advanced and exact responses.
+``prototype``
+    The lab prototype's two sources 35' apart on a background as strong as both.
+``summary``
+    ``summary.png``: a profile comparison and a standard-vs-exact image comparison.
+
+The report ``index.html`` is rewritten at the end of every run from the steps' results.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rotmod.errors import ParameterError
+
+__all__ = ["SIZES", "STEPS", "ReproduceResult", "reproduce", "write_report"]
+
+STEPS = ("profiles", "speed", "images", "prototype", "summary")
+
+#: The paper's IDL timings for one detector, 4900 sky bins x 560 time bins (s).
+PAPER_SPEED_S = {
+    "standard": 0.8,
+    "advanced-g0": 2.6,
+    "advanced-approx": 5.4,
+    "exact": None,
+    "exact-fast": None,
+    "montecarlo": 1.3 * 86400.0,
+}
+_SPEED_LABEL = {
+    "standard": "standard",
+    "advanced-g0": "advanced, G0 only",
+    "advanced-approx": "advanced, G0 + G1~",
+    "exact": "exact (not in the paper)",
+    "exact-fast": "exact, fast kernel (not in the paper)",
+    "montecarlo": "Monte Carlo (SNR 10 per time bin)",
+}
+
+#: Run sizes.  ``tiny`` is for the test suite (seconds; results not meaningful).
+SIZES: dict[str, dict[str, Any]] = {
+    "tiny": {
+        "scenarios": ("thick20", "wide50"), "n_photons": 1500, "n_angles": 72,
+        "speed_grid": (20, 20), "speed_bins": 56, "speed_repeats": 1, "mc_photons": 2e5,
+        "image_scenarios": ("a",), "image_size": "small", "image_models": ("standard", "exact"),
+        "methods": ("mlem",), "max_iter": 60, "prototype": False, "bin_mode": "center",
+        "proto_models": (), "proto_methods": (),
+    },
+    "quick": {
+        "scenarios": None, "n_photons": 20000, "n_angles": 180,
+        "speed_grid": (70, 70), "speed_bins": 560, "speed_repeats": 3, "mc_photons": 2e7,
+        "image_scenarios": ("a", "b", "c"), "image_size": "small",
+        "image_models": ("standard", "advanced", "exact"), "methods": ("mlem",),
+        "max_iter": None, "prototype": True, "bin_mode": "center",
+        "proto_models": ("exact",), "proto_methods": ("mlem", "ncar"),
+    },
+    "full": {
+        "scenarios": None, "n_photons": 200000, "n_angles": 360,
+        "speed_grid": (70, 70), "speed_bins": 560, "speed_repeats": 7, "mc_photons": 2e8,
+        "image_scenarios": ("a", "b", "c"), "image_size": "full",
+        "image_models": ("standard", "advanced", "exact"), "methods": ("mlem", "ncar"),
+        "max_iter": None, "prototype": True, "bin_mode": "average",
+        "proto_models": ("standard", "advanced", "exact"), "proto_methods": ("mlem", "ncar"),
+    },
+}
+
+#: What the paper says about each validation scenario.
+_PROFILE_CLAIMS = {
+    "thick20": "Fig. 4: the MC profile is asymmetric (shadow lengthening); the standard formula "
+               "cannot describe it; the advanced profile is 'virtually identical' to the MC.",
+    "wide50": "Fig. 5: asymmetric envelope and reduced contrast (transmission through a 1 cm "
+              "mask); the standard formula describes neither; the advanced one does.",
+    "gap12": "Fig. 6: b = 12 cm: the advanced profile shows the expected saturation of the "
+             "transmission several times per rotation (standard not applicable).",
+    "slat12": "Fig. 7: a = 12 cm: the advanced formula describes the intervals of zero "
+              "transmission ('dead time') (standard not applicable).",
+    "det12": "Fig. 8: c = 12 cm: up to two slats shadow the detector at once, described by the "
+             "advanced formula (standard not applicable).",
+    "thin5mm": "Fig. 10 set-up: 55 % transmission through 5 mm slats at 662 keV, accounted for "
+               "by the advanced formula, not by the standard one.",
+    "zen48": "Fig. 11 set-up: at 48 deg many photons clip the slats; the standard formula "
+             "does not account for it.",
+}
+_OUTSIDE = ("Outside the advanced formula's validity (Sec. 3.4: requires a, b >= h tan "
+            "theta); the paper has no model here. rotmod's exact model should match the MC.")
+
+_IMAGE_CLAIMS = {
+    "a": "Fig. 9: 122 keV source near the axis, 2 cm mask (opaque): the standard and "
+         "advanced responses both reconstruct the source accurately.",
+    "b": "Fig. 10: 662 keV, 5 mm mask (55 % slat transmission): the standard response "
+         "reconstructs spurious peaks; the advanced one does not.",
+    "c": "Fig. 11: 662 keV at theta ~ 48 deg, 2 cm mask: the standard response gives "
+         "spurious peaks and no source at the true location; the advanced one finds the "
+         "source 'virtually free of noise'.",
+}
+_PROTO_CLAIM = ("Sec. 4.3 (citing Budden et al. 2010): the 19-detector prototype (b/L = "
+                "1.9 deg) resolves two point sources 35' apart in the presence of background "
+                "(super-resolution, with NCAR).")
+
+
+@dataclass
+class ReproduceResult:
+    """What :func:`reproduce` wrote.
+
+    Attributes
+    ----------
+    output : Path
+    index : Path
+        The HTML report.
+    summary : Path or None
+        The summary figure (None when the summary step could not run).
+    run_time : float
+        Wall time of this run (s).
+    steps : dict
+        Each step's result (as in its ``result.json``).
+    """
+
+    output: Path
+    index: Path
+    summary: Path | None
+    run_time: float
+    steps: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- plumbing
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    return str(o)
+
+
+def _clean(o: Any) -> Any:
+    """Replace non-finite floats by None so the JSON is strict."""
+    if isinstance(o, dict):
+        return {k: _clean(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_clean(v) for v in o]
+    if isinstance(o, float | np.floating) and not np.isfinite(o):
+        return None
+    return o
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    text = json.dumps(_clean(json.loads(json.dumps(obj, default=_json_default))), indent=1)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def _savefig(fig: Any, path: Path, dpi: int = 110) -> str:
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return path.name
+
+
+def _run_step(
+    name: str, out: Path, fn: Callable[[Path], dict[str, Any]], *, force: bool,
+    log: Callable[[str], None],
+) -> dict[str, Any]:
+    final = out / name
+    done = final / "result.json"
+    if done.exists() and not force:
+        log(f"[{name}] done already ({final}); skipped (use --force to redo)")
+        return json.loads(done.read_text())
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.tmp-", dir=out))
+    t0 = time.perf_counter()
+    log(f"[{name}] running...")
+    try:
+        res = fn(tmp)
+        res["step_time_s"] = time.perf_counter() - t0
+        _write_json(tmp / "result.json", res)
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    log(f"[{name}] finished in {res['step_time_s']:.1f} s")
+    return json.loads(done.read_text())
+
+
+# --------------------------------------------------------------------------- steps
+
+
+def _step_profiles(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
+    import matplotlib.pyplot as plt
+
+    from rotmod.validation import SCENARIOS, plot_scenario, run_scenario
+
+    names = cfg["scenarios"] or tuple(s.name for s in SCENARIOS)
+    rows = []
+    for k, name in enumerate(names):
+        log(f"[profiles] scenario {name} ({k + 1}/{len(names)})")
+        r = run_scenario(name, n_photons=cfg["n_photons"], n_angles=cfg["n_angles"],
+                         seed=seed + k)
+        sc = r.scenario
+        fig, axes = plt.subplots(2, 1, figsize=(7.5, 5.2))
+        models = ("standard", "advanced", "exact")
+        plot_scenario(r, detector=0, source=0, models=models, ax=axes[0])
+        plot_scenario(r, detector=len(sc.detectors) - 1, source=len(sc.phi_deg) - 1,
+                      models=models, ax=axes[1])
+        fig.tight_layout()
+        fig_name = _savefig(fig, tmp / f"profile_{name}.png")
+        np.savez_compressed(
+            tmp / f"profile_{name}.npz", xi=r.xi, mc=r.mc.fraction[0, :, 0],
+            mc_err=r.mc.error[0, :, 0],
+            **{f"model_{m}": p[0, :, 0] for m, p in r.profiles.items()},
+        )
+        rows.append({
+            "name": name, "title": sc.title, "paper": sc.paper,
+            "advanced_valid": sc.advanced_valid,
+            "claim": _PROFILE_CLAIMS.get(name, _OUTSIDE),
+            "chi2_dof": r.chi2_dof, "max_dev": r.max_dev,
+            "skipped": {m: s.split(";")[0][:160] for m, s in r.skipped.items()},
+            "n_photons": int(cfg["n_photons"]), "n_angles": int(cfg["n_angles"]),
+            "figure": fig_name,
+        })
+    return {"scenarios": rows}
+
+
+def _median_time(fn: Callable[[], Any], repeats: int) -> float:
+    fn()  # warm-up (JIT, caches)
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
+    import numba
+
+    from rotmod.geometry import Instrument
+    from rotmod.montecarlo import simulate_profiles
+    from rotmod.profiles import MODELS, get_model
+    from rotmod.sky import SkyGrid
+
+    inst = Instrument.paper()  # a = b = c = 4 cm, h = 2 cm, L = 100 cm, sigma = 0.103
+    grid = SkyGrid(cfg["speed_grid"], 14.0 / cfg["speed_grid"][0])
+    theta, phi = grid.directions()
+    n_bins = cfg["speed_bins"]
+    xi = (np.arange(n_bins) + 0.5) * (2 * np.pi / n_bins)
+    rows = []
+    for name in ("standard", "advanced-g0", "advanced-approx", "exact", "exact-fast"):
+        if name == "exact-fast" and name not in MODELS:
+            continue
+        if name not in MODELS:
+            rows.append({"model": name, "label": _SPEED_LABEL[name], "time_s": None,
+                         "paper_s": PAPER_SPEED_S[name], "note": "model not available"})
+            continue
+        log(f"[speed] {name}")
+        model = get_model(name)
+        t = _median_time(
+            lambda model=model: model.profile(inst, theta, phi, xi, dtype=np.float32),
+            cfg["speed_repeats"],
+        )
+        rows.append({"model": name, "label": _SPEED_LABEL[name], "time_s": t,
+                     "paper_s": PAPER_SPEED_S[name]})
+    # Monte Carlo: measured photon rate, extrapolated to SNR 10 per time bin.
+    log("[speed] Monte Carlo photon rate")
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(theta.size, size=min(64, theta.size), replace=False)
+    n_ang = 56
+    xi_mc = (np.arange(n_ang) + 0.5) * (2 * np.pi / n_ang)
+    per_cell = max(1, int(cfg["mc_photons"] // (pick.size * n_ang)))
+    simulate_profiles(inst, theta[pick[:2]], phi[pick[:2]], xi_mc[:2], n_photons=1000, seed=0)
+    t0 = time.perf_counter()
+    mc = simulate_profiles(inst, theta[pick], phi[pick], xi_mc, n_photons=per_cell, seed=seed)
+    dt = time.perf_counter() - t0
+    n_total = per_cell * pick.size * n_ang
+    rate = n_total / dt
+    mean_p = float(mc.fraction.mean())
+    # SNR 10 per time bin: 100 transmitted photons per (time bin, sky bin) at the mean
+    # transmission, i.e. 100 / mean_p incident photons per cell.
+    need = 4900 * 560 * 100.0 / max(mean_p, 1e-9)
+    rows.append({"model": "montecarlo", "label": _SPEED_LABEL["montecarlo"],
+                 "time_s": need / rate, "paper_s": PAPER_SPEED_S["montecarlo"],
+                 "note": f"estimated: {need:.3g} photons at the measured "
+                         f"{rate:.3g} photons/s ({n_total:.3g} photons in {dt:.2f} s; "
+                         f"mean transmission {mean_p:.3f})"})
+    return {
+        "rows": rows, "grid": list(grid.shape), "n_bins": n_bins,
+        "n_sky": int(grid.size), "repeats": int(cfg["speed_repeats"]),
+        "threads": int(numba.get_num_threads()), "cpus": os.cpu_count(),
+        "paper_size": grid.size == 4900 and n_bins == 560,
+    }
+
+
+def _recon_available() -> str | None:
+    try:
+        import rotmod.reconstruction  # noqa: F401
+        from rotmod.reconstruction import metrics, scenarios  # noqa: F401
+        from rotmod.response import build_response  # noqa: F401
+    except ImportError as exc:
+        return f"rotmod.reconstruction or rotmod.response is not available ({exc})"
+    return None
+
+
+def _image_case(
+    tmp: Path, name: str, cfg: dict[str, Any], seed: int, log: Callable, *, prefix: str,
+) -> dict[str, Any]:
+    import matplotlib.pyplot as plt
+
+    from rotmod.errors import ModelValidityError
+    from rotmod.plotting.images import plot_comparison
+    from rotmod.reconstruction import ALGORITHMS, reconstruct
+    from rotmod.reconstruction.metrics import evaluate
+    from rotmod.reconstruction.scenarios import make_scenario
+    from rotmod.response import TimeBinning, build_response
+
+    log(f"[{prefix}] scenario {name}: Monte Carlo observation")
+    sc = make_scenario(name, cfg["image_size"], seed=seed)
+    tb = sc.time_bins
+    if cfg["bin_mode"] == "center":
+        tb = TimeBinning(sc.time_bins.n_bins, "center")
+    out: dict[str, Any] = {
+        "name": name, "description": sc.description, "energy_keV": sc.energy,
+        "counts": sc.counts, "exposure_s": sc.duration,
+        "background_per_det": sc.background_rate, "n_det": len(sc.instrument.detectors),
+        "grid": sc.grid.to_dict(), "n_bins": tb.n_bins, "bin_mode": tb.mode,
+        "resolution_deg": sc.resolution,
+        "sources_deg": np.degrees(np.column_stack(sc.sources)).tolist(),
+        "results": [],
+    }
+    images: dict[str, np.ndarray] = {}
+    for model in cfg["image_models"]:
+        log(f"[{prefix}] scenario {name}: {model} response")
+        try:
+            resp = build_response(sc.instrument, sc.grid, tb, model=model, energy=sc.energy,
+                                  dtype=np.float64)
+        except ModelValidityError as exc:
+            out["results"].append({"model": model, "skipped": str(exc).split(";")[0]})
+            continue
+        for method in cfg["methods"]:
+            if method not in ALGORITHMS:
+                continue
+            kw = dict(sc.reconstruct_kwargs)
+            if cfg["max_iter"]:
+                kw["max_iter"] = cfg["max_iter"]
+            log(f"[{prefix}] scenario {name}: {model} + {method}")
+            res = reconstruct(resp, sc.folded, method, seed=seed, **kw)
+            m = evaluate(res, sc.grid, sc.sources, true_flux=sc.flux, radius=sc.radius,
+                         resolution=sc.resolution)
+            out["results"].append({"model": model, "method": method, **m})
+            images[f"{model}|{method}"] = res.image
+    np.savez_compressed(tmp / f"{prefix}_{name}.npz",
+                        theta=sc.theta, phi=sc.phi, **images)
+    if images:
+        keys = list(images)
+        fig, axes = plt.subplots(1, len(keys), figsize=(3.3 * len(keys), 3.2), squeeze=False)
+        plot_comparison([images[k] for k in keys], sc.grid,
+                        titles=[k.replace("|", " + ") for k in keys], sources=sc.sources,
+                        axes=axes[0])
+        fig.suptitle(sc.description, fontsize=9)
+        fig.tight_layout()
+        out["figure"] = _savefig(fig, tmp / f"{prefix}_{name}.png")
+    return out
+
+
+def _step_images(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
+    missing = _recon_available()
+    if missing:
+        return {"missing": missing, "cases": []}
+    cases = []
+    for k, name in enumerate(cfg["image_scenarios"]):
+        case = _image_case(tmp, name, cfg, seed + k, log, prefix="image")
+        case["claim"] = _IMAGE_CLAIMS[name]
+        cases.append(case)
+    skipped = [n for n in ("a", "b", "c") if n not in cfg["image_scenarios"]]
+    return {"cases": cases, "not_run": skipped}
+
+
+def _step_prototype(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
+    missing = _recon_available()
+    if missing:
+        return {"missing": missing}
+    if not cfg["prototype"]:
+        return {"not_run": "the tiny run skips the prototype case"}
+    pcfg = {**cfg, "image_models": cfg["proto_models"], "methods": cfg["proto_methods"]}
+    case = _image_case(tmp, "d", pcfg, seed, log, prefix="prototype")
+    case["claim"] = _PROTO_CLAIM
+    return {"case": case}
+
+
+def _step_summary(out: Path, tmp: Path, log: Callable) -> dict[str, Any]:
+    import matplotlib.pyplot as plt
+
+    from rotmod.plotting.profiles import plot_profiles
+
+    prof = None
+    for name in ("thick20", "wide50", "zen48"):
+        p = out / "profiles" / f"profile_{name}.npz"
+        if p.exists():
+            prof = (name, np.load(p))
+            break
+    imgs = None
+    res_path = out / "images" / "result.json"
+    if res_path.exists():
+        cases = json.loads(res_path.read_text()).get("cases", [])
+        order = {"c": 0, "b": 1, "a": 2}
+        for case in sorted(cases, key=lambda c: order.get(c["name"], 9)):
+            f = out / "images" / f"image_{case['name']}.npz"
+            if f.exists():
+                d = np.load(f)
+                keys = [k for k in d.files if "|" in k]
+                std = [k for k in keys if k.startswith("standard|")]
+                exa = [k for k in keys if k.startswith("exact|")]
+                if std and exa:
+                    imgs = (case, d, std[0], exa[0])
+                    break
+    fig = plt.figure(figsize=(10, 7.2))
+    gs = fig.add_gridspec(2, 2, height_ratios=[1.0, 1.25])
+    ax0 = fig.add_subplot(gs[0, :])
+    if prof is not None:
+        name, d = prof
+        models = {m[6:]: d[m] for m in d.files if m.startswith("model_")
+                  and m[6:] in ("standard", "advanced", "exact")}
+        plot_profiles(d["xi"], models, mc=d["mc"], mc_error=d["mc_err"], ax=ax0,
+                      title=f"profile: Monte Carlo vs models, scenario {name}")
+    else:
+        ax0.text(0.5, 0.5, "profiles step not run", ha="center", transform=ax0.transAxes)
+    if imgs is not None:
+        from rotmod.plotting.images import plot_image
+        from rotmod.sky import SkyGrid
+
+        case, d, ks, ke = imgs
+        grid = SkyGrid.from_dict(case["grid"])
+        for j, k in enumerate((ks, ke)):
+            ax = fig.add_subplot(gs[1, j])
+            plot_image(d[k], grid, sources=(d["theta"], d["phi"]), ax=ax,
+                       title=f"{k.replace('|', ' response + ')} ({case['name']}: "
+                             f"{case['energy_keV']:g} keV)")
+    else:
+        ax = fig.add_subplot(gs[1, :])
+        ax.text(0.5, 0.5, "image step not run or reconstruction not available", ha="center",
+                transform=ax.transAxes)
+        ax.set_axis_off()
+    fig.suptitle("rotmod reproduces Budden et al.: profiles (top) and standard vs exact "
+                 "response images (bottom)", fontsize=10)
+    fig.tight_layout()
+    _savefig(fig, tmp / "summary.png", dpi=100)
+    return {"figure": "summary.png", "profile_scenario": prof[0] if prof else None,
+            "image_case": imgs[0]["name"] if imgs else None}
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _fmt(v: Any, spec: str = ".3g") -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float) and not np.isfinite(v):
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int | float):
+        return format(v, spec)
+    return html.escape(str(v))
+
+
+def _fmt_time(s: float | None) -> str:
+    if s is None:
+        return "–"
+    if s >= 86400:
+        return f"{s / 86400:.2g} days"
+    if s >= 3600:
+        return f"{s / 3600:.2g} h"
+    if s >= 60:
+        return f"{s / 60:.2g} min"
+    if s >= 1:
+        return f"{s:.3g} s"
+    return f"{s * 1e3:.3g} ms"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    h = "".join(f"<th>{html.escape(c)}</th>" for c in header)
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{h}</tr>{body}</table>"
+
+
+def _section_profiles(res: dict[str, Any] | None) -> str:
+    if not res:
+        return "<p>Not run.</p>"
+    models = ("standard", "advanced", "advanced-approx", "advanced-g0", "exact")
+    rows = []
+    for s in res["scenarios"]:
+        cells = [f"<b>{html.escape(s['name'])}</b><br><small>{html.escape(s['title'])}</small>",
+                 html.escape(s["paper"])]
+        for m in models:
+            if m in s["chi2_dof"]:
+                cells.append(f"{_fmt(s['chi2_dof'][m])}<br><small>max |Δ| "
+                             f"{_fmt(s['max_dev'][m], '.3f')}</small>")
+            else:
+                cells.append("<small>n/a</small>")
+        rows.append(cells)
+    n = res["scenarios"][0]
+    out = [
+        f"<p>Monte Carlo: {n['n_photons']} photons per (detector, mask angle, source) cell, "
+        f"{n['n_angles']} mask angles, an on-axis and an off-axis detector, two azimuths. "
+        "χ²/dof of each model against the MC (1 = agreement within the MC's statistics; "
+        "n/a = the model refuses the geometry) and the largest absolute deviation.</p>",
+        _table(["scenario", "paper", *models], rows),
+    ]
+    for s in res["scenarios"]:
+        best = min(s["chi2_dof"], key=lambda m: s["chi2_dof"][m]) if s["chi2_dof"] else None
+        obtained = "; ".join(f"{m}: χ²/dof {_fmt(v)}" for m, v in s["chi2_dof"].items())
+        if s["skipped"]:
+            obtained += "; refused: " + ", ".join(s["skipped"])
+        out.append(
+            f"<h3>{html.escape(s['name'])}: {html.escape(s['title'])}</h3>"
+            f"<p class='claim'><b>Paper:</b> {html.escape(s['claim'])}</p>"
+            f"<p class='got'><b>rotmod:</b> {obtained}. Closest to the MC: "
+            f"{html.escape(str(best))}.</p>"
+            f"<img src='profiles/{s['figure']}' width='720'>"
+        )
+    return "\n".join(out)
+
+
+def _section_speed(res: dict[str, Any] | None) -> str:
+    if not res:
+        return "<p>Not run.</p>"
+    rows = []
+    for r in res["rows"]:
+        ratio = (f"{r['paper_s'] / r['time_s']:.3g}×" if r.get("time_s") and r.get("paper_s")
+                 else "–")
+        rows.append([html.escape(r["label"]), _fmt_time(r.get("paper_s")),
+                     _fmt_time(r.get("time_s")), ratio,
+                     f"<small>{html.escape(r.get('note', ''))}</small>"])
+    size = (f"{res['n_sky']} sky bins ({res['grid'][0]}×{res['grid'][1]}) × {res['n_bins']} "
+            "time bins")
+    warn = "" if res["paper_size"] else (
+        " <b>Reduced size (tiny run): not comparable with the paper's figures.</b>")
+    return (
+        f"<p class='claim'><b>Paper:</b> one detector's response, 4900 × 560, in IDL 6.3: "
+        "standard 0.8 s, advanced (G0) 2.6 s, advanced (G0 + G1~) 5.4 s; a Monte Carlo with "
+        "SNR 10 per time bin would take almost 1.3 days.</p>"
+        f"<p class='got'><b>rotmod:</b> {size}, one detector, float32, median of "
+        f"{res['repeats']} run(s) after a warm-up, {res['threads']} thread(s) on "
+        f"{res['cpus']} CPU(s).{warn}</p>"
+        + _table(["computation", "paper (IDL)", "rotmod", "speed-up", "note"], rows)
+    )
+
+
+def _case_html(case: dict[str, Any], folder: str) -> str:
+    rows = []
+    for r in case["results"]:
+        if "skipped" in r:
+            rows.append([html.escape(r["model"]), "–", f"refused: {html.escape(r['skipped'])}",
+                         "", "", "", "", ""])
+            continue
+        extra = _fmt(r.get("dip"), ".3f") if "dip" in r else _fmt(r.get("fwhm_over_bL"), ".2f")
+        rows.append([
+            html.escape(r["model"]), html.escape(r["method"]), _fmt(r["loc_err_max"], ".3f"),
+            _fmt(r["spurious"], ".3f"), _fmt(r["flux_ratio"], ".3f"), extra,
+            _fmt(r["chi2_dof"], ".3f"), f"{int(r['n_iter'])} / {_fmt(r['run_time'], '.2g')} s",
+        ])
+    two = len(case["sources_deg"]) == 2
+    src = "; ".join(f"θ = {t:.3g}°, φ = {p:.3g}°" for t, p in case["sources_deg"])
+    g = case["grid"]
+    txt = (
+        f"<h3>{html.escape(case['description'])}</h3>"
+        f"<p class='claim'><b>Paper:</b> {html.escape(case['claim'])}</p>"
+        f"<p>Monte Carlo observation: {case['n_det']} detector(s), {case['energy_keV']:g} keV, "
+        f"{case['exposure_s']:g} s, {case['counts']} counts, background "
+        f"{case['background_per_det']:g} /s per detector; source(s) {src}; grid "
+        f"{g['shape'][1]}×{g['shape'][0]} pixels of {g['pixel_size']:.3g}° centred at "
+        f"({g['center'][0]:.3g}°, {g['center'][1]:.3g}°) (tangent plane); {case['n_bins']} "
+        f"time bins ({case['bin_mode']}); b/L = {case['resolution_deg']:.3g}°.</p>"
+        + _table(["response", "method", "localisation error (deg)",
+                  "strongest spurious peak / true peak", "recovered flux / true",
+                  "dip between sources (<1: resolved)" if two else "FWHM / (b/L)",
+                  "χ²/dof", "iterations / time"], rows)
+    )
+    good = [r for r in case["results"] if "loc_err_max" in r]
+    if good:
+        parts = []
+        for r in good:
+            s = (f"{r['model']} + {r['method']}: source found within "
+                 f"{_fmt(r['loc_err_max'], '.2f')}°, spurious/true {_fmt(r['spurious'], '.2f')}")
+            if "dip" in r:
+                s += f", dip {_fmt(r['dip'], '.2f')}"
+            parts.append(s)
+        txt += f"<p class='got'><b>rotmod:</b> {html.escape('; '.join(parts))}.</p>"
+    if case.get("figure"):
+        txt += f"<img src='{folder}/{case['figure']}' width='900'>"
+    return txt
+
+
+def _section_images(res: dict[str, Any] | None) -> str:
+    if not res:
+        return "<p>Not run.</p>"
+    if res.get("missing"):
+        return f"<p class='missing'><b>Not available:</b> {html.escape(res['missing'])}.</p>"
+    out = [_case_html(c, "images") for c in res["cases"]]
+    if res.get("not_run"):
+        out.append(f"<p>Not run at this size: scenario(s) {', '.join(res['not_run'])}.</p>")
+    return "\n".join(out)
+
+
+def _section_prototype(res: dict[str, Any] | None) -> str:
+    if not res:
+        return "<p>Not run.</p>"
+    if res.get("missing"):
+        return f"<p class='missing'><b>Not available:</b> {html.escape(res['missing'])}.</p>"
+    if res.get("not_run"):
+        return f"<p>{html.escape(res['not_run'])}.</p>"
+    return _case_html(res["case"], "prototype")
+
+
+_CSS = """
+body{font-family:sans-serif;max-width:1000px;margin:2em auto;line-height:1.4;color:#222}
+table{border-collapse:collapse;margin:0.8em 0;font-size:0.85em}
+td,th{border:1px solid #bbb;padding:3px 6px;text-align:left;vertical-align:top}
+th{background:#eee} .claim{background:#f4f4ff;padding:4px 8px}
+.got{background:#f2fff2;padding:4px 8px} .missing{background:#fff2f2;padding:4px 8px}
+img{border:1px solid #ddd;margin:4px 0}
+"""
+
+
+def write_report(output: str | os.PathLike, *, size: str, run_time: float | None,
+                 total_time: float | None = None) -> Path:
+    """Write ``<output>/index.html`` from the steps' ``result.json`` files.
+
+    Parameters
+    ----------
+    output : path
+        The reproduce folder.
+    size : str
+        The run size shown in the report.
+    run_time : float or None
+        Wall time of the last run (s).
+    total_time : float or None
+        Sum of the steps' own times (s), including steps done in earlier runs.
+
+    Returns
+    -------
+    Path
+    """
+    import rotmod
+
+    out = Path(output)
+    res: dict[str, Any] = {}
+    for s in STEPS:
+        p = out / s / "result.json"
+        res[s] = json.loads(p.read_text()) if p.exists() else None
+    when = time.strftime("%Y-%m-%d %H:%M:%S")
+    steps_t = "; ".join(
+        f"{s} {res[s]['step_time_s']:.1f} s" for s in STEPS if res[s] and "step_time_s" in res[s]
+    )
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        "<title>rotmod: reproduction of Budden et al.</title>",
+        f"<style>{_CSS}</style></head><body>",
+        "<h1>rotmod: the seed paper's results, regenerated</h1>",
+        "<p>Budden, Budden, Case &amp; Cherry, <i>Characteristic Count Rate Profiles for a "
+        "Rotating Modulator Gamma-Ray Imager</i>. For each result: what the paper claims "
+        "(blue) and what rotmod obtained in this run (green).</p>",
+        f"<p>rotmod {html.escape(rotmod.__version__)}; run size <b>{html.escape(size)}</b>; "
+        f"generated {when}; this run took <b>{_fmt_time(run_time)}</b>"
+        + (f" (all steps: {_fmt_time(total_time)}: {steps_t})" if total_time else "")
+        + ".</p>",
+        "<img src='summary.png' width='900'>" if (out / "summary.png").exists() else "",
+        "<h2 id='profiles'>1. Characteristic profiles: Monte Carlo vs standard vs advanced vs "
+        "exact</h2>", _section_profiles(res["profiles"]),
+        "<h2 id='speed'>2. Computational speed</h2>", _section_speed(res["speed"]),
+        "<h2 id='images'>3. Image reconstructions: standard vs advanced/exact response</h2>",
+        _section_images(res["images"]),
+        "<h2 id='prototype'>4. Lab prototype: two sources 35′ apart</h2>",
+        _section_prototype(res["prototype"]),
+        "</body></html>",
+    ]
+    path = out / "index.html"
+    fd, tmp = tempfile.mkstemp(prefix=".index.html.", dir=out)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write("\n".join(parts))
+    os.replace(tmp, path)
+    return path
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def reproduce(
+    output: str | os.PathLike,
+    *,
+    size: str = "quick",
+    force: bool = False,
+    steps: Sequence[str] | None = None,
+    seed: int = 1,
+    log: Callable[[str], None] | None = None,
+) -> ReproduceResult:
+    """Regenerate the seed paper's results into ``output`` (see the module notes).
+
+    Parameters
+    ----------
+    output : path
+        Output folder (created if needed).
+    size : {"quick", "full", "tiny"}
+        Run size (:data:`SIZES`); ``tiny`` is for tests.
+    force : bool
+        Redo steps whose outputs exist.
+    steps : sequence of str, optional
+        Subset of :data:`STEPS` to run (default all).
+    seed : int
+        Base seed of every Monte Carlo and randomised reconstruction.
+    log : callable, optional
+        Receives one progress line per step (the CLI prints them to stderr).
+
+    Returns
+    -------
+    ReproduceResult
+    """
+    if size not in SIZES:
+        raise ParameterError(f"size must be one of {sorted(SIZES)}, got {size!r}")
+    chosen = list(STEPS) if steps is None else list(steps)
+    bad = [s for s in chosen if s not in STEPS]
+    if bad:
+        raise ParameterError(f"steps must be among {list(STEPS)}, got {bad}")
+    say = log or (lambda msg: None)
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    out = Path(output)
+    out.mkdir(parents=True, exist_ok=True)
+    marker = out / "reproduce.json"
+    if marker.exists():
+        prev = json.loads(marker.read_text()).get("size")
+        if prev != size and not force:
+            raise ParameterError(
+                f"output {str(out)!r} holds a {prev!r} run; use another folder or --force to "
+                f"redo it as {size!r}"
+            )
+    _write_json(marker, {"size": size, "seed": seed})
+    for stale in out.glob(".*.tmp-*"):
+        shutil.rmtree(stale, ignore_errors=True)
+    cfg = SIZES[size]
+    t0 = time.perf_counter()
+    results: dict[str, dict[str, Any]] = {}
+    fns: dict[str, Callable[[Path], dict[str, Any]]] = {
+        "profiles": lambda tmp: _step_profiles(tmp, cfg, seed, say),
+        "speed": lambda tmp: _step_speed(tmp, cfg, seed, say),
+        "images": lambda tmp: _step_images(tmp, cfg, seed, say),
+        "prototype": lambda tmp: _step_prototype(tmp, cfg, seed, say),
+        "summary": lambda tmp: _step_summary(out, tmp, say),
+    }
+    for i, name in enumerate(s for s in STEPS if s in chosen):
+        say(f"step {i + 1}/{len(chosen)}: {name}")
+        results[name] = _run_step(name, out, fns[name], force=force or name == "summary",
+                                  log=say)
+        src = out / "summary" / "summary.png"
+        if name == "summary" and src.exists():
+            tmp = out / ".summary.png.tmp"
+            shutil.copyfile(src, tmp)
+            os.replace(tmp, out / "summary.png")
+    run_time = time.perf_counter() - t0
+    total = 0.0
+    for s in STEPS:
+        p = out / s / "result.json"
+        if p.exists():
+            total += json.loads(p.read_text()).get("step_time_s", 0.0)
+    index = write_report(out, size=size, run_time=run_time, total_time=total)
+    summary = out / "summary.png"
+    return ReproduceResult(out, index, summary if summary.exists() else None, run_time, results)

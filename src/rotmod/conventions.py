@@ -79,7 +79,9 @@ def mask_coordinate(x: np.ndarray, y: np.ndarray, xi: np.ndarray) -> np.ndarray:
     return np.asarray(x) * np.cos(xi) - np.asarray(y) * np.sin(xi)
 
 
-def shadow_shift(thickness: float, theta: np.ndarray, phi: np.ndarray, xi: np.ndarray) -> np.ndarray:
+def shadow_shift(
+    thickness: float, theta: np.ndarray, phi: np.ndarray, xi: np.ndarray
+) -> np.ndarray:
     """Growth ``s`` of the mask coordinate of a ray from the mask bottom to its top face.
 
     ``s = h tan(theta) cos(xi + phi)``.  The seed paper prints ``h tan(theta) sin(xi - phi)``,

@@ -4,8 +4,15 @@ Mass attenuation coefficients come from the NIST XCOM photon cross-section table
 (and maintained) by the `fisx <https://pypi.org/project/fisx/>`_ package: total attenuation
 *with* coherent scattering, elements and chemical formulas (mixture rule by mass fraction),
 tabulated from 1 keV to 100 GeV.  Energies outside that range are refused, because the
-library would extrapolate silently.  Default element densities are fisx's; compounds need an
-explicit density.
+library would extrapolate silently.  Default element densities are fisx's (except tin, see
+``_DENSITY_OVERRIDES``); compounds need an explicit density.
+
+We read fisx's XCOM table file and interpolate it ourselves rather than calling fisx's
+interpolator: fisx interpolates the pair-production cross-section log-log from its zero at the
+1022 keV threshold, which puts lead at 1.05 cm^2/g at 1022.5 keV (XCOM: 0.070).  Here each
+partial cross-section is interpolated log-log between positive table values and linearly in
+energy where one end is zero (the pair threshold), and summed; fisx still parses formulas into
+mass fractions.
 
 A material can also carry an explicit mass attenuation coefficient, and a mask an explicit
 linear coefficient, which override the database (the seed paper's scenarios use
@@ -16,6 +23,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import astropy.units as u
@@ -45,6 +53,11 @@ _ALIASES = {
 }
 
 
+#: Densities (g/cm^3) where fisx's default is not the form used for slats: fisx gives tin
+#: 5.31 (grey alpha-tin); metallic white tin is 7.31.
+_DENSITY_OVERRIDES = {"Sn": 7.31}
+
+
 @functools.cache
 def _database() -> Any:
     """The fisx element database, built once (about a second)."""
@@ -53,6 +66,44 @@ def _database() -> Any:
     db = Elements()
     db.initializeAsPyMca()
     return db
+
+
+@functools.cache
+def _xcom_tables() -> dict[str, np.ndarray]:
+    """Per element, the XCOM table: columns energy (keV) and the four partial cross-sections
+    (coherent, incoherent, photoelectric, pair; cm^2/g), rows in increasing energy."""
+    from fisx import DataDir
+
+    path = Path(DataDir.FISX_DATA_DIR) / "XCOM_CrossSections.dat"
+    tables: dict[str, np.ndarray] = {}
+    symbol, rows = None, []
+    for line in path.read_text().splitlines():
+        if line.startswith("#S"):
+            symbol, rows = line.split()[2], []
+            tables[symbol] = rows  # type: ignore[assignment]
+        elif symbol is not None and line and not line.startswith("#"):
+            rows.append([float(v) for v in line.split()])
+    # columns: E, coherent, incoherent, coh+incoh, photo, pair, total
+    return {k: np.asarray(v)[:, [0, 1, 2, 4, 5]] for k, v in tables.items()}
+
+
+def _element_attenuation(symbol: str, e: np.ndarray) -> np.ndarray:
+    """Total mass attenuation of one element at energies ``e`` (keV, 1-D)."""
+    table = _xcom_tables()[symbol]
+    grid = table[:, 0]
+    # Last row with E <= e, so at an absorption edge (a repeated energy) the value above the
+    # edge is used; the final row is folded into the last interval.
+    i = np.clip(np.searchsorted(grid, e, side="right") - 1, 0, grid.size - 2)
+    e0, e1 = grid[i], grid[i + 1]
+    total = np.zeros(e.shape)
+    for col in range(1, table.shape[1]):
+        y0, y1 = table[i, col], table[i + 1, col]
+        positive = (y0 > 0) & (y1 > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            loglog = y0 * np.exp(np.log(y1 / y0) * np.log(e / e0) / np.log(e1 / e0))
+        linear = y0 + (y1 - y0) * (e - e0) / (e1 - e0)
+        total += np.where(positive, loglog, linear)
+    return total
 
 
 def _formula(name: str) -> str:
@@ -90,13 +141,19 @@ def mass_attenuation(formula: str, energy: Any) -> np.ndarray:
         )
     name = _formula(formula)
     try:
-        table = _database().getMassAttenuationCoefficients(name, np.ravel(e).tolist())
+        composition = _database().getComposition(name)
     except ValueError as exc:
+        composition = {}
+        reason = f" ({exc})"
+    else:
+        reason = ""
+    if not composition:
         raise MaterialError(
-            f"material {formula!r} is not an element, known name or chemical formula "
-            f"({exc})"
-        ) from exc
-    return np.asarray(table["total"], dtype=float).reshape(e.shape)
+            f"material {formula!r} is not an element, known name or chemical formula{reason}"
+        )
+    flat = np.ravel(e).astype(float)
+    sigma = sum(w * _element_attenuation(el, flat) for el, w in composition.items())
+    return np.asarray(sigma).reshape(e.shape)
 
 
 @dataclass(frozen=True)
@@ -129,7 +186,7 @@ class Material:
         formula = _formula(self.name)
         if self.density is None:
             try:
-                rho = float(_database().getDensity(formula))
+                rho = _DENSITY_OVERRIDES.get(formula) or float(_database().getDensity(formula))
             except ValueError as exc:
                 raise MaterialError(
                     f"material {self.name!r}: no default density (only elements have one); "

@@ -5,6 +5,7 @@ the exact G1, G0 plus the approximation G1~) and ``exact`` (first principles, an
 Pick one by name with :func:`get_model`.
 """
 
+from rotmod.profiles.advanced import AdvancedModel
 from rotmod.profiles.base import (
     MODELS,
     ProfileModel,
@@ -14,12 +15,15 @@ from rotmod.profiles.base import (
     register_model,
 )
 from rotmod.profiles.exact import ExactModel
+from rotmod.profiles.standard import StandardModel
 
 __all__ = [
     "MODELS",
+    "AdvancedModel",
     "ExactModel",
     "ProfileModel",
     "ProjectedGeometry",
+    "StandardModel",
     "get_model",
     "project",
     "register_model",

@@ -182,7 +182,9 @@ class ProfileModel(ABC):
         self._evaluate(instrument, geom, np.cos(xi), np.sin(xi), out)
         return out
 
-    def check_validity(self, instrument: Instrument, geom: ProjectedGeometry) -> None:
+    def check_validity(  # noqa: B027 - a deliberate no-op: models valid everywhere keep it
+        self, instrument: Instrument, geom: ProjectedGeometry
+    ) -> None:
         """Raise :class:`~rotmod.errors.ModelValidityError` outside the model's domain."""
 
     @abstractmethod

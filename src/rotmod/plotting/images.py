@@ -1,0 +1,120 @@
+"""Sky images with the true source positions marked, axes in degrees (the paper's style)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from rotmod.errors import ParameterError
+
+__all__ = ["plot_comparison", "plot_image"]
+
+
+def plot_image(
+    image: Any,
+    grid: Any,
+    *,
+    sources: Any = None,
+    ax: Any = None,
+    title: str | None = None,
+    cmap: str = "viridis",
+    colorbar: bool = True,
+    relative: bool = False,
+) -> Any:
+    """Show a sky image on its grid (tangent-plane degrees) with true sources as crosses.
+
+    Parameters
+    ----------
+    image : ndarray (ny, nx) or ReconstructionResult
+    grid : SkyGrid
+    sources : (theta, phi), optional
+        True source directions (rad), marked with white ``+``.
+    ax : matplotlib Axes, optional
+    title : str, optional
+    cmap : str
+    colorbar : bool
+    relative : bool
+        Divide by the image maximum.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+    """
+    import matplotlib.pyplot as plt
+
+    img = np.asarray(getattr(image, "image", image), dtype=float)
+    if img.shape != tuple(grid.shape):
+        raise ParameterError(f"image must have the grid's shape {grid.shape}, got {img.shape}")
+    if relative and img.max() > 0:
+        img = img / img.max()
+    if ax is None:
+        _, ax = plt.subplots(figsize=(3, 3))
+    ny, nx = grid.shape
+    half = grid.pixel_size / 2
+    cx, cy = grid.center
+    ext = [
+        cx - nx * grid.pixel_size / 2, cx + nx * grid.pixel_size / 2,
+        cy - ny * grid.pixel_size / 2, cy + ny * grid.pixel_size / 2,
+    ]
+    del half
+    im = ax.imshow(img, origin="lower", extent=ext, cmap=cmap, interpolation="nearest")
+    if sources is not None:
+        x, y = grid.to_tangent(np.atleast_1d(sources[0]), np.atleast_1d(sources[1]))
+        ax.plot(x, y, "+", color="w", ms=10, mew=1.5)
+        ax.set_xlim(ext[0], ext[1])
+        ax.set_ylim(ext[2], ext[3])
+    ax.set_xlabel("x (deg)")
+    ax.set_ylabel("y (deg)")
+    if title:
+        ax.set_title(title, fontsize=9)
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+    return ax
+
+
+def plot_comparison(
+    images: Sequence[Any],
+    grid: Any,
+    *,
+    titles: Sequence[str] | None = None,
+    sources: Any = None,
+    axes: Any = None,
+    **kwargs: Any,
+) -> Any:
+    """Images side by side on one grid (e.g. standard vs advanced vs exact response).
+
+    Parameters
+    ----------
+    images : sequence of ndarray or ReconstructionResult
+    grid : SkyGrid
+    titles : sequence of str, optional
+    sources : (theta, phi), optional
+    axes : sequence of Axes, optional
+        One per image; default a new row of subplots.
+    **kwargs
+        Passed to :func:`plot_image`.
+
+    Returns
+    -------
+    ndarray of matplotlib.axes.Axes
+    """
+    import matplotlib.pyplot as plt
+
+    n = len(images)
+    if n == 0:
+        raise ParameterError("images must hold at least one image, got none")
+    if titles is not None and len(titles) != n:
+        raise ParameterError(f"titles must have one entry per image ({n}), got {len(titles)}")
+    if axes is None:
+        _, axes = plt.subplots(1, n, figsize=(3.1 * n, 3.0), squeeze=False)
+        axes = axes[0]
+    axes = np.asarray(axes, dtype=object).ravel()
+    if axes.size != n:
+        raise ParameterError(f"axes must have one entry per image ({n}), got {axes.size}")
+    for i, (img, ax) in enumerate(zip(images, axes, strict=True)):
+        plot_image(img, grid, sources=sources, ax=ax,
+                   title=None if titles is None else titles[i], **kwargs)
+    axes[0].figure.tight_layout()
+    return axes

@@ -1,0 +1,45 @@
+"""Image reconstruction: back-projection, MLEM, MART/SMART, SIRT and NCAR behind one interface.
+
+>>> res = reconstruct(response, folded, method="ncar", seed=1)   # doctest: +SKIP
+>>> res.image, res.history["chi2_dof"], res.stop_reason            # doctest: +SKIP
+
+Algorithms use only the response's ``forward``, ``adjoint`` and ``sensitivity``.  See
+``docs/reconstruction.md``.
+"""
+
+from rotmod.reconstruction import algorithms as _algorithms  # noqa: F401  (registers)
+from rotmod.reconstruction.algorithms import MART, MLEM, NCAR, SIRT, BackProjection
+from rotmod.reconstruction.base import (
+    ALGORITHMS,
+    ReconstructionResult,
+    Reconstructor,
+    StoppingRule,
+    get_algorithm,
+    reconstruct,
+    register_algorithm,
+)
+from rotmod.reconstruction.bootstrap import bootstrap_images
+from rotmod.reconstruction.data import ForwardModel, PoissonData, as_data
+from rotmod.reconstruction.stats import chi2, deviance, log_likelihood
+
+__all__ = [
+    "ALGORITHMS",
+    "MART",
+    "MLEM",
+    "NCAR",
+    "SIRT",
+    "BackProjection",
+    "ForwardModel",
+    "PoissonData",
+    "ReconstructionResult",
+    "Reconstructor",
+    "StoppingRule",
+    "as_data",
+    "bootstrap_images",
+    "chi2",
+    "deviance",
+    "get_algorithm",
+    "log_likelihood",
+    "reconstruct",
+    "register_algorithm",
+]

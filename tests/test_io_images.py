@@ -1,0 +1,65 @@
+"""FITS round trip of reconstructed images with their WCS."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rotmod import RotmodError
+from rotmod.io.images import read_image, write_image
+from rotmod.reconstruction import reconstruct
+from rotmod.response.operator import ResponseOperator
+from rotmod.sky.grid import SkyGrid
+
+
+class Dense(ResponseOperator):
+    def __init__(self, P: np.ndarray, grid: SkyGrid) -> None:
+        self.P = P
+        self.n_det, self.n_time, self.n_sky = P.shape
+        self.grid = grid
+
+    def _forward(self, sky: np.ndarray) -> np.ndarray:
+        return self.P @ sky
+
+    def _adjoint(self, counts: np.ndarray) -> np.ndarray:
+        return np.einsum("dtn,dt->n", self.P, counts)
+
+
+def test_fits_round_trip_with_wcs(tmp_path) -> None:
+    grid = SkyGrid((6, 8), 0.5, center=(10.0, -3.0))
+    rng = np.random.default_rng(0)
+    R = Dense(rng.uniform(0, 1, (2, 30, grid.size)), grid)
+    s = np.zeros(grid.size)
+    s[13] = 4.0
+    y = rng.poisson(5.0 * (R.forward(s) + 1.0))
+    res = reconstruct(R, y, "mlem", exposure=5.0, background=1.0, max_iter=5,
+                      uncertainty="bootstrap", n_boot=3, seed=1)
+    path = write_image(tmp_path / "img.fits", res)
+    back = read_image(path)
+    np.testing.assert_array_equal(back.image, res.image)
+    np.testing.assert_array_equal(back.uncertainty, res.uncertainty)
+    assert back.header["BUNIT"] == "ph s-1 pixel-1"
+    assert back.header["RECMETH"] == "mlem" and back.header["NITER"] == res.n_iter
+    assert back.params["n_boot"] == 3
+    np.testing.assert_allclose(back.history["chi2"], res.history["chi2"])
+    # Every pixel centre maps to its direction: pointing axis at (RA, Dec) = (0, 0), lab x
+    # toward +RA and y toward +Dec, so the unit vector is (cos t, sin t cos p, sin t sin p).
+    # 1e-9 deg is float64 round-off through the TAN projection.
+    th, ph = grid.directions()
+    ra = np.degrees(np.arctan2(np.sin(th) * np.cos(ph), np.cos(th)))
+    dec = np.degrees(np.arcsin(np.sin(th) * np.sin(ph)))
+    iy, ix = np.mgrid[0 : grid.shape[0], 0 : grid.shape[1]]
+    rw, dw = back.wcs.wcs_pix2world(ix.ravel(), iy.ravel(), 0)
+    np.testing.assert_allclose(rw, ra, atol=1e-9)
+    np.testing.assert_allclose(dw, dec, atol=1e-9)
+    with pytest.raises(RotmodError, match="exists"):
+        write_image(path, res)
+    write_image(path, res, overwrite=True)
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_write_requires_grid(tmp_path) -> None:
+    with pytest.raises(RotmodError, match="grid is required"):
+        write_image(tmp_path / "x.fits", image=np.zeros((2, 2)))
+    with pytest.raises(RotmodError, match="does not exist"):
+        read_image(tmp_path / "missing.fits")

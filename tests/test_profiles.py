@@ -15,6 +15,7 @@ from rotmod.materials import Material
 from rotmod.profiles import MODELS, AdvancedModel, StandardModel, get_model, project
 from rotmod.profiles.advanced import advanced_point, alpha_factor
 from rotmod.profiles.exact import exact_point
+from rotmod.profiles.standard import segment_fraction
 
 ALL = ["standard", "advanced", "advanced-approx", "advanced-g0", "exact"]
 
@@ -38,6 +39,19 @@ def _valid_case(rng):
     # xi = pi/2 - phi makes s ~ 1e-16 (the s -> 0 limit in floating point).
     xi = np.concatenate([rng.uniform(0, 2 * np.pi, 30), -phi[:2], np.pi / 2 - phi[:2]])
     return inst, theta, phi, xi
+
+
+def test_segment_fraction_matches_closed_form():
+    # The branch-free polynomial asin must give the paper's F to a few ulp of 1: F is a sum
+    # of terms of size <= 1, so 2e-15 is ~10 ulp and catches any wrong coefficient (a
+    # coefficient error of 1e-12 shows as >= 1e-13 somewhere on this grid).
+    tau = np.concatenate([np.linspace(-0.5, 1.5, 20001), [0.25, 0.75, 1e-300, 1 - 1e-16]])
+    x = np.clip(tau, 0.0, 1.0)
+    ref = (np.arccos(1 - 2 * x) - 2 * (1 - 2 * x) * np.sqrt(x - x * x)) / np.pi
+    got = np.array([segment_fraction(v) for v in tau])
+    assert np.max(np.abs(got - ref)) < 2e-15
+    # tau = -0.5 and 1.5 are clamped to [0, 1] (the paper's Lambda).
+    assert got[0] == 0.0 and got[20000] == 1.0
 
 
 def test_advanced_exact_g1_equals_exact(rng):

@@ -138,6 +138,11 @@ class ProfileModel(ABC):
 
     #: Registry name.
     name: ClassVar[str] = ""
+    #: ``P(xi + pi) = P(xi)``: a half turn maps the mask onto itself (the slat pattern is
+    #: symmetric about the gap on the rotation axis, docs/conventions.md), so the response
+    #: layer computes only half a turn of time bins.  A model of an asymmetric mask must set
+    #: this to False.
+    half_turn_symmetric: ClassVar[bool] = True
 
     def profile(
         self,

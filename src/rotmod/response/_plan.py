@@ -63,6 +63,17 @@ class ResponsePlan:
         """``(n_det, n_time, n_sky)``."""
         return (self.geom.X.shape[0], self.time_bins.n_bins, self.geom.X.shape[1])
 
+    @property
+    def n_distinct(self) -> int:
+        """Number of leading time bins that determine the whole response.
+
+        With an even number of bins ``N`` and a half-turn-symmetric model, bin ``t + N/2``
+        is bin ``t`` turned by exactly half a turn (sub-samples included), so
+        ``P[:, t + N/2] = P[:, t]`` and only the first ``N/2`` bins are computed.
+        """
+        n = self.time_bins.n_bins
+        return n // 2 if n % 2 == 0 and self.model.half_turn_symmetric else n
+
     def _sub_geometry(self, d0: int, d1: int, n0: int, n1: int) -> ProjectedGeometry:
         g = self.geom
         c = np.ascontiguousarray

@@ -117,15 +117,16 @@ def _set_metadata(
 def _fill(plan: ResponsePlan, out: np.ndarray, *, max_block_bytes: int = 64 << 20) -> None:
     """Fill ``out = P`` from ``plan`` locally (numba threads inside each kernel call)."""
     nd, nt, nn = plan.shape
-    if plan.time_bins.n_sub == 1:
+    half = plan.n_distinct
+    if half == nt and plan.time_bins.n_sub == 1:
         plan.block(out=out)
         return
     # Average mode keeps two float64 temporaries per block: bound them by time blocks.
-    per_bin = 16 * nd * nn
-    step = max(1, min(nt, max_block_bytes // max(per_bin, 1)))
-    for t0 in range(0, nt, step):
-        t1 = min(nt, t0 + step)
+    step = half if plan.time_bins.n_sub == 1 else max(1, max_block_bytes // (16 * nd * nn))
+    for t0 in range(0, half, step):
+        t1 = min(half, t0 + step)
         out[:, t0:t1, :] = plan.block(t=(t0, t1))
+    out[:, half:, :] = out[:, : nt - half, :]
 
 
 def build_response(

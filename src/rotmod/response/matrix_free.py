@@ -89,7 +89,11 @@ class MatrixFreeResponse(ResponseOperator):
         self.time_bins = self.plan.time_bins
         self.model = self.plan.model
         self.energy = self.plan.energy
-        self.blocks = block_grid(self.plan.shape, block_size, itemsize=self.dtype.itemsize)
+        # Blocks cover the distinct bins only; the others repeat them (plan.n_distinct).
+        self.n_distinct = self.plan.n_distinct
+        self.blocks = block_grid(
+            (self.n_det, self.n_distinct, self.n_sky), block_size, itemsize=self.dtype.itemsize
+        )
         self.scheduler = scheduler
         self.client = client
         self.progress = progress
@@ -99,21 +103,27 @@ class MatrixFreeResponse(ResponseOperator):
     ) -> tuple[np.ndarray | None, np.ndarray | None]:
         from rotmod.parallel import map_blocks
 
+        h = self.n_distinct
         x = None if sky is None else np.ascontiguousarray(sky, dtype=self.dtype)
         y = None if counts is None else np.ascontiguousarray(counts, dtype=self.dtype)
+        if y is not None and h < self.n_time:
+            # Bins t and t + h share a response: P^T Y = P_h^T (Y[:, :h] + Y[:, h:]).
+            y = y[:, :h] + y[:, h:]
         parts: list[Any] = [None] * len(self.blocks)
         for i, res in map_blocks(
             _products, self.blocks, self.plan, x, y,
             scheduler=self.scheduler, client=self.client, progress=self.progress,
         ):
             parts[i] = res
-        fwd = None if x is None else np.zeros((self.n_det, self.n_time), dtype=self.dtype)
+        fwd = None if x is None else np.zeros((self.n_det, h), dtype=self.dtype)
         adj = None if y is None else np.zeros(self.n_sky, dtype=self.dtype)
         for ((t0, t1), (n0, n1)), (f, a) in zip(self.blocks, parts, strict=True):
             if fwd is not None:
                 fwd[:, t0:t1] += f
             if adj is not None:
                 adj[n0:n1] += a
+        if fwd is not None and h < self.n_time:
+            fwd = np.concatenate([fwd, fwd], axis=1)
         return fwd, adj
 
     def _forward(self, sky: np.ndarray) -> np.ndarray:

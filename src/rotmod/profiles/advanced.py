@@ -24,9 +24,10 @@ terms of the paper's sum are exactly zero.  Then, with ``F0`` the clamped disc-s
     alpha = (1 - e^-tau)/tau - e^-tau
     P = 1 - Σ_m (G0_m - G1_m)
 
-``F1``'s integral is computed by the exact model's Gauss–Legendre rule in the disc angle
-(:func:`rotmod.profiles.exact._exp_piece`), which is smooth at the disc's edge and stays
-accurate and finite as ``s -> 0``.  Where the code departs from the printed equations and
+``F1``'s integral is the exact model's clip integral
+(:func:`rotmod.profiles.exact._clip_integral`: Gauss–Legendre in the square root of the
+distance from the disc's edge, where the disc's density is smooth), which stays accurate
+and finite as ``s -> 0``.  Where the code departs from the printed equations and
 why is listed in ``docs/physics.md``.
 """
 
@@ -41,7 +42,7 @@ from numba import njit, prange
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import Instrument
 from rotmod.profiles.base import ProfileModel, ProjectedGeometry, register_model
-from rotmod.profiles.exact import _GL_W, _GL_X, _exp_piece
+from rotmod.profiles.exact import _clip_integral
 from rotmod.profiles.standard import _FAST, segment_fraction
 
 __all__ = ["AdvancedModel", "advanced_point", "clip_transmission"]
@@ -89,7 +90,7 @@ def clip_transmission(y: float, w: float, tau: float, radius: float) -> float:
         # Sliver (s -> 0): the quadrature's slope would overflow; the midpoint rule is exact
         # to O(width^2) and the whole term is below 2e-12 anyway.
         return (math.exp(-0.5 * (E1 + E2)) - e_out) * dF
-    return _exp_piece(u1, u2, E1, E2, 0.0, radius, _GL_X, _GL_W) - e_out * dF
+    return _clip_integral(u1, u2, E1, E2, 0.0, radius) - e_out * dF
 
 
 @njit(cache=True, inline="always")

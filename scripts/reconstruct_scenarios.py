@@ -56,6 +56,8 @@ def main() -> None:
         for model in MODELS[name]:
             resp, t_resp, _ = measure(sc.response, model)
             for method, kw in METHODS:
+                if sc.stopping is not None and method != "backprojection":
+                    kw = {**kw, "stopping": sc.stopping}
                 res, dt, mem = measure(
                     reconstruct, resp, sc.folded, method, seed=3, **sc.reconstruct_kwargs, **kw
                 )

@@ -63,8 +63,8 @@ def test_c_large_zenith_standard_misplaces() -> None:
 
 def test_d_lab_prototype_two_sources_resolved() -> None:
     sc = make_scenario("d", "small", seed=1)
-    m = _run(sc, "advanced-approx", "ncar", n_layers=1)
-    # Resolved: a dip below 0.9 between the peaks (0.81 is Rayleigh's), each peak within
-    # one pixel (0.146 deg) of its source.
-    assert m["dip"] < 0.9 and m["loc_err_max"] < 0.15
+    m = _run(sc, "advanced-approx", "ncar", n_layers=0, stopping=sc.stopping)
+    # Resolved: a dip well below 0.9 between the peaks (measured 0.74; 0.81 is Rayleigh's),
+    # each peak on its source's pixel (measured 0; one pixel is 0.146 deg).
+    assert m["dip"] < 0.85 and m["loc_err_max"] < 0.1
     assert np.isfinite(m["chi2_dof"])

@@ -51,7 +51,6 @@ PAPER_SPEED_S = {
     "advanced-g0": 2.6,
     "advanced-approx": 5.4,
     "exact": None,
-    "exact-fast": None,
     "montecarlo": 1.3 * 86400.0,
 }
 _SPEED_LABEL = {
@@ -59,7 +58,6 @@ _SPEED_LABEL = {
     "advanced-g0": "advanced, G0 only",
     "advanced-approx": "advanced, G0 + G1~",
     "exact": "exact (not in the paper)",
-    "exact-fast": "exact, fast kernel (not in the paper)",
     "montecarlo": "Monte Carlo (SNR 10 per time bin)",
 }
 
@@ -279,9 +277,7 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     n_bins = cfg["speed_bins"]
     xi = (np.arange(n_bins) + 0.5) * (2 * np.pi / n_bins)
     rows = []
-    for name in ("standard", "advanced-g0", "advanced-approx", "exact", "exact-fast"):
-        if name == "exact-fast" and name not in MODELS:
-            continue
+    for name in ("standard", "advanced-g0", "advanced-approx", "exact"):
         if name not in MODELS:
             rows.append({"model": name, "label": _SPEED_LABEL[name], "time_s": None,
                          "paper_s": PAPER_SPEED_S[name], "note": "model not available"})
@@ -373,6 +369,8 @@ def _image_case(
             if method not in ALGORITHMS:
                 continue
             kw = dict(sc.reconstruct_kwargs)
+            if sc.stopping is not None and method != "backprojection":
+                kw["stopping"] = sc.stopping
             if cfg["max_iter"]:
                 kw["max_iter"] = cfg["max_iter"]
             log(f"[{prefix}] scenario {name}: {model} + {method}")

@@ -37,7 +37,6 @@ against adaptive quadrature over random geometries (including the hard ones of
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 from numba import njit, prange
@@ -276,46 +275,6 @@ def _clip_integral(u1, u2, e1, e2, uc, radius):
     return _clip_x(x1, x2, e1, (e2 - e1) / (x2 - x1))
 
 
-@njit(cache=True)
-def _exp_piece_fast(u1, u2, e1, e2, uc, radius, dphi):
-    """Two-moment closed form of ∫_{u1}^{u2} exp(-E(u)) dΦ(u), E linear from e1 to e2.
-
-    The disc's density on the piece is replaced by the linear density with the same mass
-    ``dphi = Φ(u2) - Φ(u1)`` and the same first moment (both exact, in closed form), and
-    the exponential is integrated against it exactly.  Exact for a density linear in ``u``;
-    the error comes from the curvature of the density (largest next to the disc's edge).
-    """
-    half = 0.5 * (u2 - u1)
-    if dphi <= 0.0 or half <= 0.0:
-        return 0.0
-    mid = 0.5 * (u1 + u2)
-    v1 = min(max((u1 - uc) / radius, -1.0), 1.0)
-    v2 = min(max((u2 - uc) / radius, -1.0), 1.0)
-    q1 = 1.0 - v1 * v1
-    q2 = 1.0 - v2 * v2
-    # ∫ (u - mid) dΦ / half: first moment in z = (u - mid)/half, |m1| <= dphi.
-    c1 = radius * (2.0 / (3.0 * math.pi))
-    m1 = ((uc - mid) * dphi + c1 * (q1 * math.sqrt(q1) - q2 * math.sqrt(q2))) / half
-    m1 = min(max(m1, -dphi), dphi)
-    # Density A + B z on [-1, 1]: 2A = dphi, (2/3) B = m1.
-    A = 0.5 * dphi
-    B = 1.5 * m1
-    kap = 0.5 * (e2 - e1)
-    if abs(kap) < 0.2:
-        em = math.exp(-0.5 * (e1 + e2))
-        k2 = kap * kap
-        i0 = 2.0 * (1.0 + k2 / 6.0 * (1.0 + k2 / 20.0 * (1.0 + k2 / 42.0 * (1.0 + k2 / 72.0))))
-        i1 = -2.0 * kap * (
-            1.0 / 3.0 + k2 * (1.0 / 30.0 + k2 * (1.0 / 840.0 + k2 / 45360.0))
-        )
-        return em * (A * i0 + B * i1)
-    x1 = math.exp(-e1)
-    x2 = math.exp(-e2)
-    i0 = (x1 - x2) / kap
-    i1 = -(kap * (x1 + x2) - (x1 - x2)) / (kap * kap)
-    return A * i0 + B * i1
-
-
 @njit(cache=True, inline="always")
 def _disc_below(x: float) -> float:
     """Fraction of the disc below ``x`` diameters from its low edge (0 and 1 outside)."""
@@ -327,7 +286,7 @@ def _disc_below(x: float) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def _point_one_slat(uc, s, s_abs, radius, a, b, tau, e_tau, fast):
+def _point_one_slat(uc, s, s_abs, radius, a, b, tau, e_tau):
     """Profile value when no ray meets two slats (``|s| <= min(a, b)``), ``uc`` reduced.
 
     Slat ``[e, e + a]`` shadows the rays that cross the mask bottom in its footprint
@@ -365,15 +324,9 @@ def _point_one_slat(uc, s, s_abs, radius, a, b, tau, e_tau, fast):
         total += (p_f1 - prev) + e_tau * (p_c2 - p_c1)
         if clips:
             if p_c1 > p_f1:
-                if fast:
-                    total += _clip_fast(f, c1, 0.0, tau, uc, radius, p_c1 - p_f1)
-                else:
-                    total += _clip_x(2.0 * f, 2.0 * c1, 0.0, kx)
+                total += _clip_x(2.0 * f, 2.0 * c1, 0.0, kx)
             if p_f2 > p_c2:
-                if fast:
-                    total += _clip_fast(c2, f2, tau, 0.0, uc, radius, p_f2 - p_c2)
-                else:
-                    total += _clip_x(2.0 * c2, 2.0 * f2, tau, -kx)
+                total += _clip_x(2.0 * c2, 2.0 * f2, tau, -kx)
         prev = p_f2
         f += pc
     total += 1.0 - prev
@@ -381,25 +334,7 @@ def _point_one_slat(uc, s, s_abs, radius, a, b, tau, e_tau, fast):
 
 
 @njit(cache=True)
-def _clip_fast(x1, x2, e1, e2, uc, radius, dphi):
-    """:func:`_exp_piece_fast` for a clip piece given in diameters from the disc's low edge
-    (clipped to the disc here)."""
-    k = (e2 - e1) / (x2 - x1)
-    if x1 < 0.0:
-        e1 -= k * x1
-        x1 = 0.0
-    if x2 > 1.0:
-        e2 -= k * (x2 - 1.0)
-        x2 = 1.0
-    lo = uc - radius
-    diam = 2.0 * radius
-    return _exp_piece_fast(lo + x1 * diam, lo + x2 * diam, e1, e2, uc, radius, dphi)
-
-
-@njit(cache=True)
-def exact_point(
-    uc: float, s: float, radius: float, a: float, b: float, tau: float, fast: bool = False
-) -> float:
+def exact_point(uc: float, s: float, radius: float, a: float, b: float, tau: float) -> float:
     """Exact profile value for one detector, source and mask angle.
 
     Parameters
@@ -414,18 +349,14 @@ def exact_point(
         Slat width and gap (cm).
     tau : float
         Optical depth of a full slat along the ray, ``mu h / cos theta`` (may be inf).
-    fast : bool
-        Integrate the exponential (clip) pieces with the two-moment closed form
-        (:func:`_exp_piece_fast`) instead of Gauss–Legendre quadrature; see
-        :class:`ExactModel` for its accuracy.
     """
     if tau == 0.0 or a == 0.0:
         return 1.0
-    return _point(uc, s, radius, a, b, tau, 0.0 if math.isinf(tau) else math.exp(-tau), fast)
+    return _point(uc, s, radius, a, b, tau, 0.0 if math.isinf(tau) else math.exp(-tau))
 
 
 @njit(cache=True)
-def _point(uc, s, radius, a, b, tau, e_tau, fast):
+def _point(uc, s, radius, a, b, tau, e_tau):
     """:func:`exact_point` for ``tau > 0``, ``a > 0``, with ``e_tau = exp(-tau)``."""
     p = a + b
     # The mask is periodic: work near the origin so that no rounding error of size
@@ -438,7 +369,7 @@ def _point(uc, s, radius, a, b, tau, e_tau, fast):
         s = 0.0
         s_abs = 0.0
     if s_abs <= min(a, b):
-        return _point_one_slat(uc, s, s_abs, radius, a, b, tau, e_tau, fast)
+        return _point_one_slat(uc, s, s_abs, radius, a, b, tau, e_tau)
     # General case (rays through two slats or across a whole slat): walk the pieces.
     lo = uc - radius
     hi = uc + radius
@@ -461,12 +392,7 @@ def _point(uc, s, radius, a, b, tau, e_tau, fast):
                 gm = _path_fraction(um, s, s_abs, a, b)
                 total += _transmission(gm, tau) * (phi_nxt - phi_cur)
             elif not math.isinf(tau):
-                if fast:
-                    total += _exp_piece_fast(
-                        cur, nxt, tau * g1, tau * g2, uc, radius, phi_nxt - phi_cur
-                    )
-                else:
-                    total += _clip_integral(cur, nxt, tau * g1, tau * g2, uc, radius)
+                total += _clip_integral(cur, nxt, tau * g1, tau * g2, uc, radius)
             cur = nxt
             phi_cur = phi_nxt
         if ea <= cur:
@@ -651,7 +577,7 @@ def _row_one_slat(X, Y, Sx, Sy, tau, e_tau, c, sn, d, radius, a, b, n_slats, out
                 absorbed[n] = 0.0
             else:
                 uc = X[d, n] * c - Y[d, n] * sn
-                absorbed[n] = 1.0 - _point(uc, s, radius, a, b, tn, e_tau[n], False)
+                absorbed[n] = 1.0 - _point(uc, s, radius, a, b, tn, e_tau[n])
             continue
         sc = width[n]
         if opaque or sc == 0.0:
@@ -704,7 +630,7 @@ def _row_one_slat(X, Y, Sx, Sy, tau, e_tau, c, sn, d, radius, a, b, n_slats, out
 
 
 @njit(parallel=True, cache=True)
-def _exact_grid(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, fast, out):
+def _exact_grid(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, out):
     nd, nt, nn = out.shape
     if a == 0.0:
         out[...] = 1.0
@@ -714,9 +640,9 @@ def _exact_grid(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, fast, out):
     n_inf = 0
     for n in range(nn):
         n_inf += 1 if math.isinf(tau[n]) else 0
-    if fast or b == 0.0 or rows == 0 or 0 < n_inf < nn:
-        # Per-point kernel (exact-fast; b = 0, where only s = 0 is one-slat; and a mix of
-        # opaque and finite optical depths, which the row kernel does not take).
+    if b == 0.0 or rows == 0 or 0 < n_inf < nn:
+        # Per-point kernel (b = 0, where only s = 0 is one-slat; and a mix of opaque and
+        # finite optical depths, which the row kernel does not take).
         for idx in prange(rows):
             d = idx // nt
             t = idx % nt
@@ -727,7 +653,7 @@ def _exact_grid(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, fast, out):
                 s = Sx[n] * c - Sy[n] * sn
                 out[d, t, n] = (
                     1.0 if tau[n] == 0.0
-                    else _point(uc, s, radius, a, b, tau[n], e_tau[n], fast)
+                    else _point(uc, s, radius, a, b, tau[n], e_tau[n])
                 )
         return
     # At most floor((c + a + |s|) / p) + 1 footprints meet the disc, |s| <= min(a, b), each
@@ -748,20 +674,11 @@ def _exact_grid(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, fast, out):
 class ExactModel(ProfileModel):
     """Exact profile from first principles, valid for every geometry (see module notes).
 
-    Parameters
-    ----------
-    fast : bool
-        False (default, registry name ``"exact"``): clip pieces by Gauss–Legendre
-        quadrature, accurate to 1e-10 (better than 1e-12 measured).  True (``"exact-fast"``):
-        clip pieces by a two-moment closed form (:func:`_exp_piece_fast`); its error is
-        stated in ``docs/response.md`` (measured against the accurate path).
+    Clip pieces are integrated by Gauss–Legendre quadrature: accurate to 1e-10 (better than
+    1e-12 measured against brute-force quadrature, tests/test_exact.py).
     """
 
     name = "exact"
-
-    def __init__(self, fast: bool = False) -> None:
-        self.fast = bool(fast)
-        self.name = "exact-fast" if self.fast else "exact"
 
     def _evaluate(
         self,
@@ -774,13 +691,8 @@ class ExactModel(ProfileModel):
         m = instrument.mask
         _exact_grid(
             geom.X, geom.Y, geom.Sx, geom.Sy, geom.tau, cos_xi, sin_xi,
-            instrument.detectors.radius, m.slat_width, m.slat_gap, self.fast, out,
+            instrument.detectors.radius, m.slat_width, m.slat_gap, out,
         )
-
-    def describe(self) -> dict[str, Any]:
-        """Parameters that identify this model (for metadata)."""
-        return {"model": self.name, "fast": self.fast}
 
 
 register_model("exact", ExactModel)
-register_model("exact-fast", lambda: ExactModel(fast=True))

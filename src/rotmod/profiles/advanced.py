@@ -184,26 +184,14 @@ def _advanced_grid(X, Y, Sx, Sy, tau, alpha, n_slats, cos_xi, sin_xi, diam, a, b
             out[d, t, n] = advanced_point(uc, s, diam, a, b, tau[n], alpha[n], n_slats, mode)
 
 
-@njit(cache=True, inline="always", fastmath=_FAST)
-def _slat_geometry(x, y, sx, sy, c, sn, j, a, p, inv_p, diam, inv_c):
-    """``|s|, |s|/c, a'/c`` and ``x*`` of the ``j``-th candidate slat at one angle."""
-    uc = x * c - y * sn
-    s = sx * c - sy * sn
-    sa = abs(s)
-    w = abs(uc + 0.5 * s)
-    w = w - p * np.floor(w * inv_p)
-    m = _first_slat(w, sa, a, diam, inv_p) + j
-    wa = (a - sa) * inv_c
-    xs = 0.5 * (wa + 1.0) - abs(w - (0.5 + m) * p) * inv_c
-    return sa, sa * inv_c, wa, xs
-
-
 @njit(parallel=True, cache=True, fastmath=_FAST)
 def _advanced_rows(X, Y, Sx, Sy, opac, alpha, n_slats, cos_xi, sin_xi, diam, a, b, mode, out):
     """Branch-free kernel for G0 and G0 - G1~ (modes 0 and 2), vectorised over sources.
 
-    Every one of the ``n_slats`` candidate slats is evaluated; those whose footprint misses
-    the disc contribute exactly 0 because all their F0 arguments clamp to the same value.
+    Per row (detector, angle) one pass computes each source's geometry (``|s|/c``, ``a'/c``
+    and the offset of its first candidate slat); then every one of the ``n_slats`` candidate
+    slats is evaluated from it.  Slats whose footprint misses the disc contribute exactly 0
+    because all their F0 arguments clamp to the same value.
     """
     nd, nt, nn = out.shape
     p = a + b
@@ -214,25 +202,34 @@ def _advanced_rows(X, Y, Sx, Sy, opac, alpha, n_slats, cos_xi, sin_xi, diam, a, 
         t = idx % nt
         c = cos_xi[t]
         sn = sin_xi[t]
+        ws = np.empty(nn)  # |s|/c
+        wa = np.empty(nn)  # a'/c
+        off = np.empty(nn)  # |x'| - (m0 + 1/2) p: x*_m = (wa + 1)/2 - |off - j p|/c
+        for n in range(nn):
+            uc = X[d, n] * c - Y[d, n] * sn
+            s = Sx[n] * c - Sy[n] * sn
+            sa = abs(s)
+            w = abs(uc + 0.5 * s)  # |x'(t)| reduced to one period
+            w = w - p * np.floor(w * inv_p)
+            ws[n] = sa * inv_c
+            wa[n] = (a - sa) * inv_c
+            off[n] = w - (0.5 + _first_slat(w, sa, a, diam, inv_p)) * p
         acc = np.zeros(nn)
         for j in range(n_slats):
+            shift = j * p
             # Two copies of the source loop, so that each is branch-free and vectorises.
             if mode == 2:
                 for n in range(nn):
-                    _, ws, wa, xs = _slat_geometry(
-                        X[d, n], Y[d, n], Sx[n], Sy[n], c, sn, j, a, p, inv_p, diam, inv_c
-                    )
-                    f_hi = segment_fraction(xs + ws)
-                    f_lo = segment_fraction(xs - wa - ws)
-                    f_core = segment_fraction(xs) - segment_fraction(xs - wa)
+                    xs = 0.5 * (wa[n] + 1.0) - abs(off[n] - shift) * inv_c
+                    f_hi = segment_fraction(xs + ws[n])
+                    f_lo = segment_fraction(xs - wa[n] - ws[n])
+                    f_core = segment_fraction(xs) - segment_fraction(xs - wa[n])
                     acc[n] += (opac[n] - alpha[n]) * (f_hi - f_lo) + alpha[n] * f_core
             else:
                 for n in range(nn):
-                    _, ws, wa, xs = _slat_geometry(
-                        X[d, n], Y[d, n], Sx[n], Sy[n], c, sn, j, a, p, inv_p, diam, inv_c
-                    )
+                    xs = 0.5 * (wa[n] + 1.0) - abs(off[n] - shift) * inv_c
                     acc[n] += opac[n] * (
-                        segment_fraction(xs + ws) - segment_fraction(xs - wa - ws)
+                        segment_fraction(xs + ws[n]) - segment_fraction(xs - wa[n] - ws[n])
                     )
         for n in range(nn):
             out[d, t, n] = min(max(1.0 - acc[n], 0.0), 1.0)

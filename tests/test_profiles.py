@@ -64,7 +64,9 @@ def test_advanced_exact_g1_equals_exact(rng):
         inst, theta, phi, xi = _valid_case(rng)
         d = np.abs(adv.profile(inst, theta, phi, xi) - ex.profile(inst, theta, phi, xi))
         worst = max(worst, float(d.max()))
-    assert worst <= 1e-6
+    # The bound is 1e-6; measured 7e-14.  1e-11 catches a slip in the advanced
+    # model's G1 bookkeeping (clip limits, mirrored second term) far below the bound.
+    assert worst <= 1e-11
 
 
 def test_advanced_opaque_against_reference(reference, rng):

@@ -185,7 +185,8 @@ def compute_blocks(
     ----------
     plan : ResponsePlan
     out : ndarray
-        Array of ``plan.shape`` (any writable array-like supporting slice assignment).
+        Array of ``plan.shape`` (any array-like supporting slice reads and assignment: the
+        repeated half turn of bins is copied within ``out``).
     scheduler, client, progress, block_size
         See :func:`map_blocks` and :func:`block_grid`.
     """

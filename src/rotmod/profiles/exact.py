@@ -504,7 +504,9 @@ def _gl_batch12(ya, yb, ea, ky, amp, m, res):
 def _row_closed_forms(X, Y, Sx, Sy, e_tau, c, sn, d, radius, a, b, n_slats, opaque, w):
     """First pass of :func:`_row_one_slat`, branch-free and vectorised across sources: the
     footprints' core-side disc fractions, and each source's first footprint and ``|s|``.
-    (No fastmath: ``uc`` is rounded exactly as in :func:`_exact_grid`'s scalar path.)"""
+    (No fastmath, so ``uc`` and ``s`` are rounded as in the per-point path; the periodic
+    reduction of ``uc`` may differ from :func:`_point`'s by an ulp at a half-period tie,
+    which the mask's periodicity makes harmless.)"""
     nn = X.shape[1]
     p = a + b
     inv_p = 1.0 / p
@@ -671,6 +673,10 @@ def _exact_grid(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, out):
                           n_slats, out[d, t], w, iw)
 
 
+#: Sources per kernel call (bounds the row kernel's scratch to ~16 MB per thread).
+_SOURCE_CHUNK = 1 << 15
+
+
 class ExactModel(ProfileModel):
     """Exact profile from first principles, valid for every geometry (see module notes).
 
@@ -689,10 +695,22 @@ class ExactModel(ProfileModel):
         out: np.ndarray,
     ) -> None:
         m = instrument.mask
-        _exact_grid(
-            geom.X, geom.Y, geom.Sx, geom.Sy, geom.tau, cos_xi, sin_xi,
-            instrument.detectors.radius, m.slat_width, m.slat_gap, out,
-        )
+        args = (instrument.detectors.radius, m.slat_width, m.slat_gap)
+        nn = out.shape[2]
+        if nn <= _SOURCE_CHUNK:
+            _exact_grid(geom.X, geom.Y, geom.Sx, geom.Sy, geom.tau, cos_xi, sin_xi, *args, out)
+            return
+        # The row kernel's scratch grows with the sources per call (15 x 2 n_slats float64
+        # per source and thread): bound it by evaluating slices of sources.
+        c = np.ascontiguousarray
+        for n0 in range(0, nn, _SOURCE_CHUNK):
+            n1 = min(nn, n0 + _SOURCE_CHUNK)
+            part = np.empty((*out.shape[:2], n1 - n0), dtype=out.dtype)
+            _exact_grid(
+                c(geom.X[:, n0:n1]), c(geom.Y[:, n0:n1]), geom.Sx[n0:n1], geom.Sy[n0:n1],
+                geom.tau[n0:n1], cos_xi, sin_xi, *args, part,
+            )
+            out[:, :, n0:n1] = part
 
 
 register_model("exact", ExactModel)

@@ -131,6 +131,7 @@ def make_scenario(name: str, size: str = "small", seed: int = 0) -> Scenario:
     if size not in ("small", "full"):
         raise ParameterError(f"size must be 'small' or 'full', got {size!r}")
     full = size == "full"
+    stopping = None
     if name in _PAPER:
         desc, energy, h, theta_deg = _PAPER[name]
         # 662 keV: the paper's sigma; 122 keV: the XCOM database (opaque either way).
@@ -192,8 +193,6 @@ def make_scenario(name: str, size: str = "small", seed: int = 0) -> Scenario:
         stopping = StoppingRule(max_iter=3000, rel_tol=1e-9)
     else:
         raise ParameterError(f"name must be one of {SCENARIOS}, got {name!r}")
-    if name != "d":
-        stopping = None
     tb = TimeBinning(n_bins, mode="average", n_sub=4)
     # Whole rotations: every bin gets the same exposure.
     duration = float(np.ceil(duration / inst.rotation_period) * inst.rotation_period)

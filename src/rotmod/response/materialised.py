@@ -121,11 +121,17 @@ def _fill(plan: ResponsePlan, out: np.ndarray, *, max_block_bytes: int = 64 << 2
     if half == nt and plan.time_bins.n_sub == 1:
         plan.block(out=out)
         return
-    # Average mode keeps two float64 temporaries per block: bound them by time blocks.
-    step = half if plan.time_bins.n_sub == 1 else max(1, max_block_bytes // (16 * nd * nn))
-    for t0 in range(0, half, step):
-        t1 = min(half, t0 + step)
-        out[:, t0:t1, :] = plan.block(t=(t0, t1))
+    if plan.time_bins.n_sub == 1:
+        # One detector at a time straight into ``out`` (out[d] is C-contiguous), so the
+        # only memory is the matrix itself.
+        for d in range(nd):
+            plan.block(d=(d, d + 1), t=(0, half), out=out[d : d + 1, :half])
+    else:
+        # Average mode keeps two float64 temporaries per block: bound them by time blocks.
+        step = max(1, max_block_bytes // max(16 * nd * nn, 1))
+        for t0 in range(0, half, step):
+            t1 = min(half, t0 + step)
+            out[:, t0:t1, :] = plan.block(t=(t0, t1))
     out[:, half:, :] = out[:, : nt - half, :]
 
 

@@ -109,8 +109,9 @@ def _path_fraction(x: float, s: float, s_abs: float, a: float, b: float) -> floa
 # --- Clip pieces: Gauss–Legendre in t = sqrt(distance from the disc's edge) --------------
 #: Gauss–Legendre rules on [-1, 1] for the clip pieces: 12 nodes in general, 8 on sub-pieces
 #: away from the disc's edge (``t1 >= 0.6 t2``).
-_G12_X, _G12_W = np.polynomial.legendre.leggauss(12)
-_G8_X, _G8_W = np.polynomial.legendre.leggauss(8)
+#: (Tuples, so that the kernels see the node count as a constant.)
+_G12_X, _G12_W = (tuple(v) for v in np.polynomial.legendre.leggauss(12))
+_G8_X, _G8_W = (tuple(v) for v in np.polynomial.legendre.leggauss(8))
 #: Largest change of the exponent over one sub-piece.
 _CLIP_DE = 2.5
 #: Smallest Bernstein-ellipse parameter of a sub-piece in t for the density's branch point
@@ -147,7 +148,7 @@ def _exp_neg_small(d: float) -> float:
 
 @njit(cache=True, inline="always", fastmath=_VEC, error_model="numpy")
 def _gl_node(acc, x, w, tm, h, hh, ky):
-    """Add Gauss–Legendre node ``x`` (weight ``w``) of :func:`_gl12` / :func:`_gl8`."""
+    """Add Gauss–Legendre node ``x`` (weight ``w``) of :func:`_gl`."""
     dt = h * x
     t = tm + dt
     tt = t * t
@@ -156,27 +157,17 @@ def _gl_node(acc, x, w, tm, h, hh, ky):
 
 
 @njit(cache=True, inline="always", fastmath=_VEC, error_model="numpy")
-def _gl12(t1: float, t2: float, ky: float) -> float:
-    """``∫_{t1}^{t2} t^2 sqrt(2 - t^2) exp(-ky (t^2 - y_mid)) dt`` by 12-point Gauss–Legendre,
-    ``y_mid = (t1^2 + t2^2)/2`` (so ``|exponent| <= |ky| (t2^2 - t1^2) / 2 <= 1.25``)."""
+def _gl(gx, gw, t1: float, t2: float, ky: float) -> float:
+    """``∫_{t1}^{t2} t^2 sqrt(2 - t^2) exp(-ky (t^2 - y_mid)) dt`` by the Gauss–Legendre rule
+    ``(gx, gw)`` (``_G8`` or ``_G12``), ``y_mid = (t1^2 + t2^2)/2`` (so ``|exponent| <= |ky|
+    (t2^2 - t1^2) / 2 <= 1.25``).  The rule is a tuple, so its length is a compile-time
+    constant and the node loop unrolls."""
     tm = 0.5 * (t1 + t2)
     h = 0.5 * (t2 - t1)
     hh = h * h
     acc = 0.0
-    for k in range(12):
-        acc = _gl_node(acc, _G12_X[k], _G12_W[k], tm, h, hh, ky)
-    return acc * h
-
-
-@njit(cache=True, inline="always", fastmath=_VEC, error_model="numpy")
-def _gl8(t1: float, t2: float, ky: float) -> float:
-    """:func:`_gl12` with 8 nodes, for sub-pieces away from the disc's edge."""
-    tm = 0.5 * (t1 + t2)
-    h = 0.5 * (t2 - t1)
-    hh = h * h
-    acc = 0.0
-    for k in range(8):
-        acc = _gl_node(acc, _G8_X[k], _G8_W[k], tm, h, hh, ky)
+    for k in range(len(gx)):
+        acc = _gl_node(acc, gx[k], gw[k], tm, h, hh, ky)
     return acc * h
 
 
@@ -190,7 +181,7 @@ def _clip_t(ya: float, yb: float, ea: float, ky: float) -> float:
     piece is cut into sub-pieces uniform in ``y`` such that the exponent changes by at most
     ``_CLIP_DE`` on each and the branch point lies outside the Bernstein ellipse of parameter
     ``_CLIP_XI`` around each (in t); each is integrated by 12-point Gauss–Legendre in ``t``
-    (:func:`_gl12`), or 8-point (:func:`_gl8`) for a single sub-piece away from the edge.
+    (:func:`_gl` with ``_G12``), or 8-point (``_G8``) for a single sub-piece away from the edge.
     """
     dy = yb - ya
     de = abs(ky) * dy
@@ -198,8 +189,8 @@ def _clip_t(ya: float, yb: float, ea: float, ky: float) -> float:
         # One sub-piece (the common case): xi >= 2 holds for dy <= 0.5 when yb <= 1.25.
         scale = _4_PI * math.exp(-(ea + 0.5 * ky * dy))
         if ya >= 0.36 * yb:
-            return _gl8(math.sqrt(ya), math.sqrt(yb), ky) * scale
-        return _gl12(math.sqrt(ya), math.sqrt(yb), ky) * scale
+            return _gl(_G8_X, _G8_W, math.sqrt(ya), math.sqrt(yb), ky) * scale
+        return _gl(_G12_X, _G12_W, math.sqrt(ya), math.sqrt(yb), ky) * scale
     # Longest sub-piece (in y) with xi >= _CLIP_XI: for a sub-piece of length L whose mid is
     # at t, xi = 4 t (sqrt 2 - t) / L, concave in t, so the worst sub-pieces are the one at
     # the edge (t >= sqrt(L)/2, xi >= 2 sqrt(2/L) - 1) and the one at the far end (t <= tb).
@@ -216,7 +207,7 @@ def _clip_t(ya: float, yb: float, ea: float, ky: float) -> float:
         t2 = math.sqrt(y2)
         em = ea + ky * ((i + 0.5) * step)  # exponent at the sub-piece's mid (in y)
         if em - 0.5 * abs(ky) * step < _CLIP_CUT:
-            total += _gl12(t1, t2, ky) * math.exp(-em)
+            total += _gl(_G12_X, _G12_W, t1, t2, ky) * math.exp(-em)
         t1 = t2
     return total * _4_PI
 
@@ -436,7 +427,7 @@ def _exp_neg_40(e: float) -> float:
 def _piece_code(x1, x2, e1, kx):
     """A clip piece ``[x1, x2]`` (radii from the disc's low edge, exponent ``e1 + kx (x - x1)``)
     as the arguments ``(ya, yb, ea, ky)`` of a one-sub-piece :func:`_clip_t` and a code:
-    0 empty, 1 for :func:`_gl8`, 2 for :func:`_gl12`, 3 needs :func:`_clip_x` (several
+    0 empty, 1 for the 8-node rule, 2 for the 12-node rule, 3 needs :func:`_clip_x` (several
     sub-pieces, a split, a sliver or an exponent near the cut).  Branch-free."""
     e1 = e1 - kx * min(x1, 0.0)
     x1 = max(x1, 0.0)
@@ -455,7 +446,7 @@ def _piece_code(x1, x2, e1, kx):
 
 @njit(cache=True, inline="always", fastmath=_VEC, error_model="numpy")
 def _gl_mass_node(acc_m, acc_t, x, w, tm, h, hh, ky):
-    """Add node ``x`` (weight ``w``) of :func:`_gl_batch8` to the mass and transmission sums."""
+    """Add node ``x`` (weight ``w``) of :func:`_gl_batch` to the mass and transmission sums."""
     dt = h * x
     t = tm + dt
     tt = t * t
@@ -464,9 +455,10 @@ def _gl_mass_node(acc_m, acc_t, x, w, tm, h, hh, ky):
 
 
 @njit(cache=True, fastmath=_VEC, error_model="numpy")
-def _gl_batch8(ya, yb, ea, ky, amp, m, res):
+def _gl_batch(gx, gw, ya, yb, ea, ky, amp, m, res):
     """``∫ (amp - exp(-(ea + ky (y - ya)))) dΦ`` over ``[ya, yb]`` for ``m`` one-sub-piece
-    clip pieces at once, by the 8-node rule of :func:`_clip_t` (vectorised across pieces)."""
+    clip pieces at once, by the rule ``(gx, gw)`` of :func:`_clip_t` (vectorised across
+    pieces)."""
     for i in range(m):
         t1 = math.sqrt(ya[i])
         t2 = math.sqrt(yb[i])
@@ -476,26 +468,8 @@ def _gl_batch8(ya, yb, ea, ky, amp, m, res):
         k = ky[i]
         acc_m = 0.0
         acc_t = 0.0
-        for q in range(8):
-            acc_m, acc_t = _gl_mass_node(acc_m, acc_t, _G8_X[q], _G8_W[q], tm, h, hh, k)
-        em = ea[i] + 0.5 * k * (yb[i] - ya[i])
-        res[i] = (amp[i] * acc_m - _exp_neg_40(em) * acc_t) * (h * _4_PI)
-
-
-@njit(cache=True, fastmath=_VEC, error_model="numpy")
-def _gl_batch12(ya, yb, ea, ky, amp, m, res):
-    """:func:`_gl_batch8` with the 12-node rule (pieces near the disc's edge)."""
-    for i in range(m):
-        t1 = math.sqrt(ya[i])
-        t2 = math.sqrt(yb[i])
-        tm = 0.5 * (t1 + t2)
-        h = 0.5 * (t2 - t1)
-        hh = h * h
-        k = ky[i]
-        acc_m = 0.0
-        acc_t = 0.0
-        for q in range(12):
-            acc_m, acc_t = _gl_mass_node(acc_m, acc_t, _G12_X[q], _G12_W[q], tm, h, hh, k)
+        for q in range(len(gx)):
+            acc_m, acc_t = _gl_mass_node(acc_m, acc_t, gx[q], gw[q], tm, h, hh, k)
         em = ea[i] + 0.5 * k * (yb[i] - ya[i])
         res[i] = (amp[i] * acc_m - _exp_neg_40(em) * acc_t) * (h * _4_PI)
 
@@ -552,7 +526,7 @@ def _row_one_slat(X, Y, Sx, Sy, tau, e_tau, c, sn, d, radius, a, b, n_slats, out
     quadrature).  Pass 1 (:func:`_row_closed_forms`) sums the disc fractions of all
     ``n_slats`` candidate footprints per source (those off the disc give exactly 0); pass 2
     compacts the clip pieces on the disc into an 8-node and a 12-node batch for
-    :func:`_gl_batch8` / :func:`_gl_batch12`, which vectorise across pieces.  Pieces that need
+    :func:`_gl_batch` (8- and 12-node rules), which vectorise across pieces.  Pieces that need
     :func:`_clip_x` (several sub-pieces, a split, a sliver) and rays through two slats
     (``|s| > min(a, b)``) are done by the scalar code.  ``w``, ``iw``: float and int scratch,
     shapes (15, m), (2, m), ``m >= max(2 n_slats, 1) nn + 1``.  ``tau`` must be all finite
@@ -617,8 +591,8 @@ def _row_one_slat(X, Y, Sx, Sy, tau, e_tau, c, sn, d, radius, a, b, n_slats, out
                     mass = _disc_below(0.5 * x2) - _disc_below(0.5 * x1)
                     absorbed[n] += amp * mass - _clip_x(x1, x2, e1, k1)
             f += pc
-    _gl_batch8(w[1], w[2], w[3], w[4], w[5], m8, w[6])
-    _gl_batch12(w[7], w[8], w[9], w[10], w[11], m12, w[12])
+    _gl_batch(_G8_X, _G8_W, w[1], w[2], w[3], w[4], w[5], m8, w[6])
+    _gl_batch(_G12_X, _G12_W, w[7], w[8], w[9], w[10], w[11], m12, w[12])
     res8 = w[6]
     res12 = w[12]
     own8 = iw[0]

@@ -27,6 +27,30 @@ def _finite(arr: np.ndarray, name: str) -> None:
         raise ParameterError(f"{name} must be finite, got non-finite values")
 
 
+def _per_bin(
+    value: Any, name: str, unit: str, n_det: int, n_t: int, *, per_detector: bool
+) -> np.ndarray:
+    """``value`` (scalar, per time bin ``(n_t,)``, per detector ``(n_det,)`` if
+    ``per_detector``, or ``(n_det, n_t)``) as a finite, non-negative ``(n_det, n_t)`` array."""
+    v = np.array(value, dtype=float)
+    shapes = [(n_t,), (n_det, n_t)]
+    if v.ndim == 0:
+        v = np.full((n_det, n_t), float(v))
+    elif per_detector and v.shape == (n_det,) and v.shape != (n_t,):
+        v = np.repeat(v[:, None], n_t, axis=1)
+    elif v.shape == (n_t,):
+        v = np.broadcast_to(v, (n_det, n_t)).copy()
+    elif v.shape != (n_det, n_t):
+        if per_detector:
+            shapes.insert(0, (n_det,))
+        allowed = ", ".join(str(s) for s in shapes[:-1]) + f" or {shapes[-1]}"
+        raise ParameterError(f"{name} must be a scalar or have shape {allowed}, got {v.shape}")
+    _finite(v, name)
+    if np.any(v < 0):
+        raise ParameterError(f"{name} must be >= 0 {unit}, got minimum {v.min():g} {unit}")
+    return v
+
+
 @dataclass(frozen=True, eq=False)
 class PoissonData:
     """Folded counts with their exposure and background model.
@@ -64,39 +88,12 @@ class PoissonData:
         if np.any(c < 0):
             raise ParameterError(f"counts must be >= 0, got minimum {c.min():g}")
         n_det, n_t = c.shape
-        ex = np.array(self.exposure, dtype=float)
-        if ex.ndim == 0:
-            ex = np.full((n_det, n_t), float(ex))
-        elif ex.shape == (n_t,):
-            ex = np.broadcast_to(ex, (n_det, n_t)).copy()
-        elif ex.shape != (n_det, n_t):
-            raise ParameterError(
-                f"exposure must be a scalar or have shape ({n_t},) or ({n_det}, {n_t}), "
-                f"got {ex.shape}"
-            )
-        _finite(ex, "exposure")
-        if np.any(ex < 0):
-            raise ParameterError(f"exposure must be >= 0 s, got minimum {ex.min():g} s")
+        ex = _per_bin(self.exposure, "exposure", "s", n_det, n_t, per_detector=False)
         if not np.any(ex > 0):
             raise ParameterError("exposure must be > 0 s in at least one bin, got all zero")
         bkg = None
         if self.background is not None:
-            b = np.array(self.background, dtype=float)
-            if b.ndim == 0:
-                b = np.full((n_det, n_t), float(b))
-            elif b.shape == (n_det,) and b.shape != (n_t,):
-                b = np.repeat(b[:, None], n_t, axis=1)
-            elif b.shape == (n_t,):
-                b = np.broadcast_to(b, (n_det, n_t)).copy()
-            elif b.shape != (n_det, n_t):
-                raise ParameterError(
-                    f"background must be a scalar or have shape ({n_det},), ({n_t},) or "
-                    f"({n_det}, {n_t}), got {b.shape}"
-                )
-            _finite(b, "background")
-            if np.any(b < 0):
-                raise ParameterError(f"background must be >= 0 1/s, got minimum {b.min():g}")
-            bkg = b
+            bkg = _per_bin(self.background, "background", "1/s", n_det, n_t, per_detector=True)
         if self.fit_background and bkg is not None and np.any(bkg.sum(axis=1) <= 0):
             raise ParameterError(
                 "background template must be > 0 somewhere on every detector when "

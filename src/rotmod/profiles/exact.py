@@ -571,22 +571,21 @@ def _row_one_slat(X, Y, Sx, Sy, tau, e_tau, c, sn, d, radius, a, b, n_slats, out
                 k1 = kx if side == 0 else -kx
                 amp = et if side == 0 else 1.0
                 ya, yb, ea, ky, code = _piece_code(x1, x2, e1, k1)
-                if code == 1:
-                    w[1, m8] = ya
-                    w[2, m8] = yb
-                    w[3, m8] = ea
-                    w[4, m8] = ky
-                    w[5, m8] = amp
-                    iw[0, m8] = n
-                    m8 += 1
-                elif code == 2:
-                    w[7, m12] = ya
-                    w[8, m12] = yb
-                    w[9, m12] = ea
-                    w[10, m12] = ky
-                    w[11, m12] = amp
-                    iw[1, m12] = n
-                    m12 += 1
+                if code == 1 or code == 2:
+                    # Batch g: 0 = 8-node rule (rows 1-5 of w), 1 = 12-node (rows 7-11).
+                    g = code - 1
+                    r = 1 + 6 * g
+                    q = m8 if g == 0 else m12
+                    w[r, q] = ya
+                    w[r + 1, q] = yb
+                    w[r + 2, q] = ea
+                    w[r + 3, q] = ky
+                    w[r + 4, q] = amp
+                    iw[g, q] = n
+                    if g == 0:
+                        m8 += 1
+                    else:
+                        m12 += 1
                 elif code == 3:
                     mass = _disc_below(0.5 * x2) - _disc_below(0.5 * x1)
                     absorbed[n] += amp * mass - _clip_x(x1, x2, e1, k1)

@@ -13,7 +13,7 @@ import numpy as np
 
 from rotmod.errors import ParameterError
 
-__all__ = ["as_array", "as_scalar"]
+__all__ = ["as_array", "as_float_dtype", "as_int", "as_scalar"]
 
 
 def _strip(value: Any, unit: u.UnitBase | None, name: str) -> np.ndarray:
@@ -103,3 +103,29 @@ def as_scalar(value: Any, name: str, unit: u.UnitBase | None = None, **bounds: A
     if arr.ndim != 0:
         raise ParameterError(f"{name} must be a scalar, got shape {arr.shape}")
     return float(arr)
+
+
+def as_int(value: Any, name: str, lo: int = 0, hi: int | None = None) -> int:
+    """Check that ``value`` is an integer (not a bool, not a float) in ``[lo, hi]``.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``name``, the value received and the rule.
+    """
+    ok = not isinstance(value, bool) and isinstance(value, int | np.integer)
+    if not ok or value < lo or (hi is not None and value > hi):
+        rule = f"an integer >= {lo}" if hi is None else f"an integer in [{lo}, {hi}]"
+        raise ParameterError(f"{name} must be {rule}, got {value!r}")
+    return int(value)
+
+
+def as_float_dtype(dtype: Any, name: str = "dtype") -> np.dtype:
+    """Check that ``dtype`` is float32 or float64 (the two precisions rotmod computes in)."""
+    try:
+        dt = np.dtype(dtype)
+    except TypeError as exc:
+        raise ParameterError(f"{name} must be float32 or float64, got {dtype!r}") from exc
+    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ParameterError(f"{name} must be float32 or float64, got {dt}")
+    return dt

@@ -1,7 +1,9 @@
 """Small helpers that turn user input (floats, arrays or astropy Quantities) into canonical
 float arrays and raise :class:`~rotmod.errors.ParameterError` naming the parameter.
 
-Canonical units (see :mod:`rotmod.conventions`): cm, rad, keV, s.
+Canonical units (see :mod:`rotmod.conventions`): cm, rad, keV, s inside the code.  At the
+public surface a plain number that is an angle means *degrees* (the astropy/gammapy habit);
+:func:`as_angle` is the one place that rule is applied.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import numpy as np
 
 from rotmod.errors import ParameterError
 
-__all__ = ["as_array", "as_float_dtype", "as_int", "as_scalar"]
+__all__ = ["as_angle", "as_angle_scalar", "as_array", "as_float_dtype", "as_int", "as_scalar"]
 
 
 def _strip(value: Any, unit: u.UnitBase | None, name: str) -> np.ndarray:
@@ -129,3 +131,24 @@ def as_float_dtype(dtype: Any, name: str = "dtype") -> np.dtype:
     if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ParameterError(f"{name} must be float32 or float64, got {dt}")
     return dt
+
+
+def as_angle(value: Any, name: str, **bounds: Any) -> np.ndarray:
+    """Convert a public angle (Quantity, or plain number in **degrees**) to radians.
+
+    The units rule of rotmod's public surface: every angle a user passes (zenith, azimuth,
+    mask angle, phase, pixel size, roll) is an `~astropy.units.Quantity` or a plain number
+    in degrees.  Bounds (``lo``, ``hi``, ``lo_open``, ``hi_open``) and ``ndim`` are those of
+    :func:`as_array`, with the bounds in degrees so that error messages speak the user's unit.
+
+    Returns
+    -------
+    numpy.ndarray
+        The angle in radians (rotmod's internal unit).
+    """
+    return np.deg2rad(as_array(value, name, u.deg, **bounds))
+
+
+def as_angle_scalar(value: Any, name: str, **bounds: Any) -> float:
+    """Scalar form of :func:`as_angle`; returns a Python float in radians."""
+    return float(np.deg2rad(as_scalar(value, name, u.deg, **bounds)))

@@ -21,8 +21,8 @@ from rotmod import Instrument
 from rotmod.montecarlo import simulate_profiles
 
 INST = Instrument.paper(a=4.0, h=2.0)  # lead, a = b = c = 4 cm, h = 2 cm, L = 100 cm
-THETA, PHI = np.radians([6.0]), np.radians([32.0])
-XI = (np.arange(560) + 0.5) * 2 * np.pi / 560
+THETA, PHI = [6.0], [32.0]  # deg (a plain public angle means degrees)
+XI = (np.arange(560) + 0.5) * 360.0 / 560  # deg
 
 
 def numpy_transport(inst, theta, phi, xi, n_per_angle, rng):
@@ -84,7 +84,8 @@ def main() -> None:
     rng = np.random.default_rng(1)
     n_np = 2000
     rate_np = _median_rate(
-        lambda: numpy_transport(INST, THETA[0], PHI[0], XI, n_np, rng), n_np * XI.size, 3
+        lambda: numpy_transport(INST, *np.radians([THETA[0], PHI[0]]), np.radians(XI), n_np, rng),
+        n_np * XI.size, 3
     )
     rows.append(("numpy (vectorised, 1 core)", rate_np))
     print(f"{'implementation':32s} {'photons/s':>12s}  (median; {total:.2g} photons per run)")
@@ -96,8 +97,8 @@ def main() -> None:
     pix = 12.0 / 60.0
     c = (np.arange(nx) - (nx - 1) / 2) * pix
     gx, gy = np.meshgrid(c, c)
-    theta = np.arctan(np.radians(np.hypot(gx, gy))).ravel()  # tangent-plane offsets (deg)
-    phi = np.arctan2(gy, gx).ravel()
+    theta = np.degrees(np.arctan(np.radians(np.hypot(gx, gy)))).ravel()  # deg
+    phi = np.degrees(np.arctan2(gy, gx)).ravel()
     probe = simulate_profiles(INST, theta[::97], phi[::97], XI, n_photons=2000, seed=2)
     pbar = float(probe.fraction.mean())
     n_inc = int(np.ceil(100.0 / pbar))

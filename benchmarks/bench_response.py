@@ -13,6 +13,7 @@ import os
 import platform
 import time
 
+import astropy.units as u
 import numba
 import numpy as np
 
@@ -44,7 +45,7 @@ def numpy_advanced_approx(inst: Instrument, theta, phi, xi) -> np.ndarray:
     m = inst.mask
     a, b, c = m.slat_width, m.slat_gap, inst.detectors.diameter
     p = a + b
-    g = project(inst, theta, phi)
+    g = project(inst, theta * u.rad, phi * u.rad)
     tau = g.tau
     e_tau = np.exp(-tau)
     alpha = alpha_factor(tau)
@@ -75,9 +76,10 @@ def main() -> None:
     # that the standard model applies too).
     inst19 = Instrument(Instrument.paper(a=3.8).mask, DetectorArray.hexagonal(3.8, rings=2))
     grid = SkyGrid.paper()
-    theta, phi = grid.directions()
+    theta, phi = (v.to_value(u.rad) for v in grid.directions())  # plain rad for numpy
     tb = TimeBinning(560)
-    xi = tb.angles()
+    xi = tb.angles()  # plain rad, like theta and phi; the rotmod API gets Quantities
+    th_q, ph_q, xi_q = theta * u.rad, phi * u.rad, xi * u.rad
     nthreads = numba.get_num_threads()
     nan = float("nan")
 
@@ -96,12 +98,12 @@ def main() -> None:
         mdl = get_model(name)
         # profile(): every one of the 560 angles; build_response: the response matrix, which
         # computes 280 bins and repeats them (half-turn symmetry, ResponsePlan.n_distinct).
-        prof = both(lambda mdl=mdl: mdl.profile(inst1, theta, phi, xi, dtype=np.float32))
+        prof = both(lambda mdl=mdl: mdl.profile(inst1, th_q, ph_q, xi_q, dtype=np.float32))
         resp = both(lambda mdl=mdl: build_response(inst1, grid, tb, mdl))
         rows.append((f"{name}, 1 detector", *prof, *resp, targets.get(name, "")))
 
     t_np = median_time(lambda: numpy_advanced_approx(inst1, theta, phi, xi), r)
-    ref = get_model("advanced-approx").profile(inst1, theta, phi, xi)
+    ref = get_model("advanced-approx").profile(inst1, th_q, ph_q, xi_q)
     np_err = np.abs(numpy_advanced_approx(inst1, theta, phi, xi) - ref).max()
     t_adv = rows[models.index("advanced-approx")][1]
     rows.append(("plain numpy float64 advanced-approx, 1 detector", t_np, t_np, nan, nan, ""))

@@ -35,9 +35,9 @@ def scenario_errors(a: float, b: float, c: float, h: float, theta_deg: float) ->
     """Max/RMS of |P_approx - P_exact| and related sizes, over detectors, azimuths, angles."""
     inst = Instrument.paper(a=a, b=b, c=c, h=h)
     inst = Instrument(inst.mask, DetectorArray([[0.0, 0.0], [4.2, 0.0]], c))
-    theta = np.full(len(PHI_DEG), np.radians(theta_deg))
-    phi = np.radians(PHI_DEG)
-    xi = np.linspace(0, 2 * np.pi, N_ANGLES, endpoint=False)
+    theta = np.full(len(PHI_DEG), theta_deg)  # deg
+    phi = np.asarray(PHI_DEG)
+    xi = np.linspace(0, 360.0, N_ANGLES, endpoint=False)
     p_ex = get_model("advanced").profile(inst, theta, phi, xi)
     p_ap = get_model("advanced-approx").profile(inst, theta, phi, xi)
     p_g0 = get_model("advanced-g0").profile(inst, theta, phi, xi)

@@ -11,6 +11,7 @@ import math
 import warnings
 from collections.abc import Callable
 
+import astropy.units as u
 import numpy as np
 import pytest
 from scipy.integrate import IntegrationWarning, quad
@@ -115,3 +116,8 @@ def reference_profile(uc: float, s: float, radius: float, a: float, b: float, ta
 def reference() -> Callable[[float, float, float, float, float, float], float]:
     """The brute-force :func:`reference_profile` (uc, s, radius, a, b, tau) -> P."""
     return reference_profile
+
+
+def rad(value):
+    """Angles the tests compute in radians, as Quantities (a plain public angle means deg)."""
+    return u.Quantity(value, u.rad)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, get_model
 from rotmod.events import EventList, exposure_per_bin, fold
 from rotmod.montecarlo import PointSources, simulate_observation
@@ -36,7 +37,7 @@ def _inst(n_rings=0, T=60.0):
     ],
 )
 def test_exposure_per_bin_analytic(gti, phase, expected):
-    ex = exposure_per_bin(gti, 4, 60.0, phase)
+    ex = exposure_per_bin(gti, 4, 60.0, rad(phase))
     # Exact arithmetic up to rounding of t / T (relative 1e-15 of ~100 s).
     np.testing.assert_allclose(ex, expected, atol=1e-9)
 
@@ -44,7 +45,7 @@ def test_exposure_per_bin_analytic(gti, phase, expected):
 def test_exposure_matches_brute_force():
     rng = np.random.default_rng(1)
     edges = np.sort(rng.uniform(0, 1000, 12)).reshape(6, 2)
-    ex = exposure_per_bin(edges, 7, 37.3, 0.9)
+    ex = exposure_per_bin(edges, 7, 37.3, rad(0.9))
     assert ex.sum() == pytest.approx(np.sum(edges[:, 1] - edges[:, 0]), rel=1e-12)
     # Brute force on a 1 ms grid: each sample carries 1 ms, so bins agree within a few ms
     # (each GTI end can misplace at most one sample per bin crossing).
@@ -67,7 +68,7 @@ def test_fold_counts_hand_made():
     np.testing.assert_allclose(f.exposure, [30, 30, 30, 30])
     np.testing.assert_allclose(f.rate, [[2 / 30, 2 / 30, 0, 1 / 30]])
     np.testing.assert_allclose(f.error, [[np.sqrt(2) / 30, np.sqrt(2) / 30, 0, 1 / 30]])
-    np.testing.assert_allclose(f.bin_edges, np.linspace(0, 2 * np.pi, 5))
+    np.testing.assert_allclose(f.bin_edges.to_value("rad"), np.linspace(0, 2 * np.pi, 5))
 
 
 def test_folded_simulation_recovers_model():
@@ -75,19 +76,19 @@ def test_folded_simulation_recovers_model():
     inst = _inst(n_rings=1, T=20.0)  # 7 detectors
     th, ph = np.radians([8.0]), np.radians([35.0])
     rate, bkg = 400.0, 30.0
-    src = PointSources(th, ph, rate=rate, energy=662.0)
+    src = PointSources(rad(th), rad(ph), rate=rate, energy=662.0)
     gti = [[3.0, 71.0], [90.0, 177.7]]  # 7.8 turns, a gap, non-integer turns
     phase = 0.7
-    ev = simulate_observation(inst, src, t_stop=180.0, gti=gti, start_phase=phase,
+    ev = simulate_observation(inst, src, t_stop=180.0, gti=gti, start_phase=rad(phase),
                               background=bkg, seed=11)
     n_bins, sub = 40, 20
     f = fold(ev, n_bins)
     # Expected counts: rate x integral of P over the good time in each bin, evaluated on 20
     # sub-bins per bin (exposure per sub-bin exact; P varies by < 1e-3 across a sub-bin, so
     # the quadrature error is << the Poisson error of ~30 counts per bin).
-    ex_sub = exposure_per_bin(gti, n_bins * sub, inst.rotation_period, phase)
+    ex_sub = exposure_per_bin(gti, n_bins * sub, inst.rotation_period, rad(phase))
     xi_sub = (np.arange(n_bins * sub) + 0.5) * 2 * np.pi / (n_bins * sub)
-    P = get_model("exact").profile(inst, th, ph, xi_sub)[:, :, 0]
+    P = get_model("exact").profile(inst, rad(th), rad(ph), rad(xi_sub))[:, :, 0]
     mu = (rate * P * ex_sub).reshape(7, n_bins, sub).sum(axis=2) + bkg * f.exposure
     chi2 = np.sum((f.counts - mu) ** 2 / mu)
     dof = mu.size
@@ -101,7 +102,7 @@ def test_folded_simulation_recovers_model():
 
 def test_observation_reproducible_and_sorted():
     inst = _inst()
-    src = PointSources([0.1, 0.2], [0.0, 1.0], rate=[100.0, 50.0], energy=[662.0, 122.0])
+    src = PointSources(rad([0.1, 0.2]), rad([0.0, 1.0]), rate=[100.0, 50.0], energy=[662.0, 122.0])
     kw = dict(t_stop=50.0, background=5.0, background_energy=300.0, seed=3, chunk_size=500)
     a = simulate_observation(inst, src, **kw)
     b = simulate_observation(inst, src, **kw)
@@ -118,7 +119,7 @@ def test_observation_reproducible_and_sorted():
 
 def test_bad_input_names_parameter():
     inst = _inst()
-    src = PointSources([0.1], [0.0], rate=1.0)
+    src = PointSources(rad([0.1]), [0.0], rate=1.0)
     with pytest.raises(ParameterError, match="n_bins must be an integer >= 1"):
         exposure_per_bin([[0, 1]], 0, 60.0)
     with pytest.raises(ParameterError, match="gti must contain at least one interval"):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from numba import njit
 
+from conftest import rad
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.profiles import get_model, project
 from rotmod.profiles.exact import _clip_integral, exact_point
@@ -65,7 +66,7 @@ def _reference_clip(u1, u2, e1, e2, uc, radius, gl_x, gl_w):
 
 def _points(inst, theta, phi, xi, energy=None):
     """(uc, s, tau) for every (detector, angle, source), flattened in P[d, t, n] order."""
-    geom = project(inst, theta, phi, energy)
+    geom = project(inst, rad(theta), rad(phi), energy)
     uc, s = geom.mask_coordinates(np.asarray(xi, dtype=float))
     s = np.broadcast_to(s, uc.shape)
     tau = np.broadcast_to(geom.tau, uc.shape)
@@ -96,7 +97,7 @@ def test_exact_matches_adaptive_quadrature(make_instrument, reference, rng, a, b
     theta = np.radians([theta_deg, theta_deg / 3])
     phi = rng.uniform(-np.pi, np.pi, 2)
     xi = rng.uniform(0, 2 * np.pi, 6)
-    got = get_model("exact").profile(inst, theta, phi, xi).ravel()
+    got = get_model("exact").profile(inst, rad(theta), rad(phi), rad(xi)).ravel()
     for value, uc, s, tau in zip(got, *_points(inst, theta, phi, xi), strict=True):
         want = reference(uc, s, c / 2, a, b, tau)
         assert value == pytest.approx(want, abs=1e-10), (uc, s, tau)
@@ -147,13 +148,15 @@ def test_exact_tends_to_standard(make_instrument, rng):
         theta = rng.uniform(0, np.radians(60), 20)
         phi = rng.uniform(-np.pi, np.pi, 20)
         xi = np.linspace(0, 2 * np.pi, 97)
-        np.testing.assert_allclose(ex.profile(inst, theta, phi, xi),
-                                   std.profile(inst, theta, phi, xi), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(ex.profile(inst, rad(theta), rad(phi), rad(xi)),
+                                   std.profile(inst, rad(theta), rad(phi),
+                                               rad(xi)), rtol=0, atol=1e-9)
     # ... and the limit is approached continuously: h = 1e-6 cm moves P by O(h tan theta / c).
     inst = make_instrument(4.0, 4.0, 4.0, 1e-6, 1e9)
     inst0 = make_instrument(4.0, 4.0, 4.0, 0.0, np.inf)
     xi = np.linspace(0, 2 * np.pi, 50)
-    d = ex.profile(inst, [0.3], [0.2], xi) - std.profile(inst0, [0.3], [0.2], xi)
+    d = ex.profile(inst, rad([0.3]), rad([0.2]), rad(xi)) - std.profile(inst0, rad([0.3]),
+                                                                        rad([0.2]), rad(xi))
     assert np.max(np.abs(d)) < 1e-5
 
 
@@ -201,7 +204,7 @@ def test_exact_grid_kernel_matches_scalar_kernel(rng):
         theta = rng.uniform(0, np.radians(80), 7)
         phi = rng.uniform(-np.pi, np.pi, 7)
         xi = np.concatenate([rng.uniform(0, 2 * np.pi, 5), [-phi[0], np.pi / 2 - phi[1]]])
-        got = get_model("exact").profile(inst, theta, phi, xi).ravel()
+        got = get_model("exact").profile(inst, rad(theta), rad(phi), rad(xi)).ravel()
         want = [exact_point(uc, s, c / 2, a, b, tau)
                 for uc, s, tau in zip(*_points(inst, theta, phi, xi), strict=True)]
         worst = max(worst, float(np.max(np.abs(got - np.asarray(want)))))
@@ -215,7 +218,7 @@ def test_exact_paper_grid_against_adaptive_quadrature(paper_instrument, referenc
     theta = np.radians(rng.uniform(0, 9.9, 12))
     phi = rng.uniform(-np.pi, np.pi, 12)
     xi = rng.uniform(0, 2 * np.pi, 8)
-    got = get_model("exact").profile(paper_instrument, theta, phi, xi).ravel()
+    got = get_model("exact").profile(paper_instrument, rad(theta), rad(phi), rad(xi)).ravel()
     c = paper_instrument.detectors.diameter
     m = paper_instrument.mask
     for value, uc, s, tau in zip(got, *_points(paper_instrument, theta, phi, xi), strict=True):
@@ -231,6 +234,7 @@ def test_source_slices_give_the_same_profile(monkeypatch, rng):
     inst = Instrument.paper()
     theta, phi = rng.uniform(0, 0.3, 1000), rng.uniform(0, 2 * np.pi, 1000)
     xi = np.linspace(0, 2 * np.pi, 9)
-    whole = get_model("exact").profile(inst, theta, phi, xi)
+    whole = get_model("exact").profile(inst, rad(theta), rad(phi), rad(xi))
     monkeypatch.setattr(exact_mod, "_SOURCE_CHUNK", 300)
-    np.testing.assert_array_equal(get_model("exact").profile(inst, theta, phi, xi), whole)
+    np.testing.assert_array_equal(get_model("exact").profile(inst, rad(theta), rad(phi), rad(xi)),
+                                  whole)

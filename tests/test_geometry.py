@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import rad
 from rotmod.conventions import mask_coordinate, shadow_shift, source_direction
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
@@ -58,7 +59,7 @@ def test_hexagonal_prototype_and_roundtrip():
     assert np.allclose(det.positions[0], 0.0)
     inst = Instrument(Mask(4.0, 4.0, 2.0, 100.0, "Pb"), det, rotation_period=30.0)
     assert Instrument.from_dict(inst.to_dict()) == inst
-    assert inst.mask_angle(7.5) == pytest.approx(np.pi / 2)
+    assert inst.mask_angle(7.5).to_value("rad") == pytest.approx(np.pi / 2)
 
 
 def test_slat_layout_gap_on_axis():
@@ -86,7 +87,7 @@ def test_conventions_by_ray_tracing(rng):
         # The mask turns clockwise: u = r cos(psi + xi) for a point at polar (r, psi).
         r, psi = math.hypot(*bottom[:2]), math.atan2(bottom[1], bottom[0])
         assert u_bottom == pytest.approx(r * math.cos(psi + xi), abs=1e-12)
-        geom = project(inst, [theta], [phi])
+        geom = project(inst, rad([theta]), rad([phi]))
         uc, s = geom.mask_coordinates(np.array([xi]))
         assert uc[0, 0, 0] == pytest.approx(u_bottom, abs=1e-12)
         assert s[0, 0] == pytest.approx(u_top - u_bottom, abs=1e-12)

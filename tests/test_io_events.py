@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from astropy.io import fits
 
+from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, RotmodError
 from rotmod.events import fold
 from rotmod.io import read_events, read_folded, write_events, write_folded
@@ -16,9 +17,9 @@ from rotmod.montecarlo import PointSources, simulate_observation
 def events():
     mat = Material("Pb", density=11.34, mass_attenuation=0.103)
     inst = Instrument(Mask(4.0, 4.0, 2.0, 100.0, mat), DetectorArray.hexagonal(3.8, rings=1), 30.0)
-    src = PointSources(np.radians([6.0, 12.0]), [0.3, 2.0], rate=[40.0, 10.0], energy=662.0)
+    src = PointSources([6.0, 12.0], rad([0.3, 2.0]), rate=[40.0, 10.0], energy=662.0)
     return simulate_observation(inst, src, t_stop=100.0, gti=[[0, 40], [55.5, 97.0]],
-                                start_phase=0.4, background=2.0, seed=8)
+                                start_phase=rad(0.4), background=2.0, seed=8)
 
 
 def test_event_round_trip(events, tmp_path):
@@ -27,10 +28,13 @@ def test_event_round_trip(events, tmp_path):
     assert back.instrument == events.instrument
     for name in ("time", "detector", "energy", "source", "gti"):
         assert np.array_equal(getattr(back, name), getattr(events, name)), name
-    assert back.start_phase == events.start_phase
+    # Angles are stored in deg: one deg <-> rad conversion each way (two roundings, 1e-15).
+    assert back.start_phase.to_value("rad") == pytest.approx(events.start_phase.to_value("rad"),
+                                                             rel=1e-15)
     assert (back.t_start, back.t_stop) == (events.t_start, events.t_stop)
     assert back.meta == events.meta
-    np.testing.assert_array_equal(back.sources.theta, events.sources.theta)
+    np.testing.assert_allclose(back.sources.theta.to_value("rad"),
+                               events.sources.theta.to_value("rad"), rtol=1e-15)
     h = fits.getheader(p, "EVENTS")
     assert h["HDUCLAS1"] == "EVENTS" and h["TIMEUNIT"] == "s"
     for key in ("TELESCOP", "INSTRUME", "TSTART", "TSTOP", "TIMESYS", "MJDREFI", "MJDREFF",
@@ -47,8 +51,11 @@ def test_folded_round_trip(events, tmp_path):
     assert back.instrument == f.instrument
     assert np.array_equal(back.counts, f.counts)
     assert np.array_equal(back.exposure, f.exposure)
-    assert np.array_equal(back.bin_edges, f.bin_edges)
-    assert back.start_phase == f.start_phase
+    # Bin edges are stored in deg: one conversion each way, two roundings (1e-15 relative).
+    np.testing.assert_allclose(back.bin_edges.to_value("rad"), f.bin_edges.to_value("rad"),
+                               rtol=1e-15)
+    assert back.start_phase.to_value("rad") == pytest.approx(f.start_phase.to_value("rad"),
+                                                             rel=1e-15)
 
 
 def test_opaque_mask_round_trip(events, tmp_path):

@@ -45,7 +45,7 @@ def test_fits_round_trip_with_wcs(tmp_path) -> None:
     # Every pixel centre maps to its direction: pointing axis at (RA, Dec) = (0, 0), lab x
     # toward +RA and y toward +Dec, so the unit vector is (cos t, sin t cos p, sin t sin p).
     # 1e-9 deg is float64 round-off through the TAN projection.
-    th, ph = grid.directions()
+    th, ph = (v.to_value("rad") for v in grid.directions())
     ra = np.degrees(np.arctan2(np.sin(th) * np.cos(ph), np.cos(th)))
     dec = np.degrees(np.arcsin(np.sin(th) * np.sin(ph)))
     iy, ix = np.mgrid[0 : grid.shape[0], 0 : grid.shape[1]]

@@ -10,6 +10,7 @@ import pytest
 from numba import njit
 from scipy import stats
 
+from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, get_model
 from rotmod.montecarlo import PointSources, chord_lengths, simulate_profiles
 from rotmod.montecarlo._rng import chunk_states, poisson, seed_sequence
@@ -33,7 +34,7 @@ def test_vertical_ray_through_slat_is_h():
     assert chord_lengths(inst, 4.0, 0.0, 0.0, 0.0, 0.0) == pytest.approx(20.0, rel=1e-14)
     assert chord_lengths(inst, 0.0, 0.0, 0.0, 0.0, 0.0) == 0.0  # gap on the axis
     # At xi = 90 deg, u = -y: the slat 2 <= u <= 6 is at y = -4.
-    assert chord_lengths(inst, 0.0, -4.0, 0.0, 0.0, np.pi / 2) == pytest.approx(20.0)
+    assert chord_lengths(inst, 0.0, -4.0, 0.0, 0.0, rad(np.pi / 2)) == pytest.approx(20.0)
 
 
 def test_oblique_ray_through_two_slats():
@@ -43,22 +44,23 @@ def test_oblique_ray_through_two_slats():
     # side into the top face, i.e. 2 + 1 = 3 cm of u, each cm of u costing sqrt(2) of path.
     inst = _inst()
     th = np.radians(45.0)
-    assert chord_lengths(inst, -100.0, 0.0, th, 0.0, 0.0) == pytest.approx(3 * SQ2, rel=1e-13)
+    assert chord_lengths(inst, -100.0, 0.0, rad(th), 0.0, 0.0) == pytest.approx(3 * SQ2, rel=1e-13)
     # Same ray rotated: phi = 90 deg, xi = -90 deg gives u = y and du = sin(theta).
-    assert chord_lengths(inst, 0.0, -100.0, th, np.pi / 2, -np.pi / 2) == pytest.approx(
+    assert chord_lengths(inst, 0.0, -100.0, rad(th), rad(np.pi / 2),
+                         rad(-np.pi / 2)) == pytest.approx(
         3 * SQ2, rel=1e-13
     )
     # Three slats: h = 10, u from 0 to 10 crosses [1,3], [5,7] and [9,10] (top face).
-    assert chord_lengths(_inst(h=10.0), -100.0, 0.0, th, 0.0, 0.0) == pytest.approx(5 * SQ2)
+    assert chord_lengths(_inst(h=10.0), -100.0, 0.0, rad(th), 0.0, 0.0) == pytest.approx(5 * SQ2)
     # Bottom face to side plane: u from 2 to 8 meets [2,3], [5,7]: 3 cm of u.
-    assert chord_lengths(inst, -98.0, 0.0, th, 0.0, 0.0) == pytest.approx(3 * SQ2)
+    assert chord_lengths(inst, -98.0, 0.0, rad(th), 0.0, 0.0) == pytest.approx(3 * SQ2)
 
 
 def test_ray_along_slats_uses_full_thickness():
     # Direction along the slats (du = 0, phi + xi = 90 deg): inside a slat for all of h.
     inst = _inst(a=4.0, b=4.0, h=2.0)
     th = np.radians(30.0)
-    L = chord_lengths(inst, 4.0, 0.0, th, np.pi / 2, 0.0)
+    L = chord_lengths(inst, 4.0, 0.0, rad(th), rad(np.pi / 2), 0.0)
     assert L == pytest.approx(2.0 / np.cos(th), rel=1e-14)
 
 
@@ -96,7 +98,8 @@ def mc_runs():
         sc = get_scenario(name)
         inst = sc.instrument()
         xi = (np.arange(_N_ANG) + 0.5) * 2 * np.pi / _N_ANG
-        mc = simulate_profiles(inst, sc.theta, sc.phi, xi, n_photons=_N_PHOT, seed=100 + i)
+        mc = simulate_profiles(inst, rad(sc.theta), rad(sc.phi), rad(xi), n_photons=_N_PHOT,
+                               seed=100 + i)
         out[name] = (inst, sc, xi, mc)
     return out
 
@@ -104,7 +107,7 @@ def mc_runs():
 @pytest.mark.parametrize("name", _SCEN)
 def test_exact_model_agrees_with_mc(mc_runs, name):
     inst, sc, xi, mc = mc_runs[name]
-    P = get_model("exact").profile(inst, sc.theta, sc.phi, xi)
+    P = get_model("exact").profile(inst, rad(sc.theta), rad(sc.phi), rad(xi))
     chi2, dof = chi_square(P, mc.counts, mc.n_photons)
     # Accept unless chi2 is in either 0.05 % tail (total false-rejection 1e-3 per scenario;
     # the seeds are fixed, so this is a one-time risk, not a flaky test).
@@ -121,7 +124,7 @@ def test_exact_model_agrees_with_mc(mc_runs, name):
 @pytest.mark.parametrize("name", ["thick20", "wide50", "a_lt_htan"])
 def test_wrong_models_are_rejected(mc_runs, name):
     inst, sc, xi, mc = mc_runs[name]
-    P = get_model("exact").profile(inst, sc.theta, sc.phi, xi)
+    P = get_model("exact").profile(inst, rad(sc.theta), rad(sc.phi), rad(xi))
     crit = lambda dof: stats.chi2.isf(_ALPHA / 2, dof)  # noqa: E731 - same threshold as above
     # (1) off by 0.5 % of the unobstructed flux everywhere, and 0.5 % (relative) too much
     # transmission: the deviations the test must resolve.
@@ -130,7 +133,7 @@ def test_wrong_models_are_rejected(mc_runs, name):
     chi2, dof = chi_square(np.minimum(1.005 * P, 1.0), mc.counts, mc.n_photons)
     assert chi2 > crit(dof)
     # (2) s with the wrong sign (shadow shifted the wrong way).
-    Pw = _FlippedS().profile(inst, sc.theta, sc.phi, xi)
+    Pw = _FlippedS().profile(inst, rad(sc.theta), rad(sc.phi), rad(xi))
     chi2, dof = chi_square(Pw, mc.counts, mc.n_photons)
     assert chi2 > crit(dof)
 
@@ -139,7 +142,7 @@ def test_standard_model_rejected_on_thick_mask(mc_runs):
     if "standard" not in MODELS:
         pytest.skip("standard model not registered")
     inst, sc, xi, mc = mc_runs["thick20"]
-    P = get_model("standard").profile(inst, sc.theta, sc.phi, xi)
+    P = get_model("standard").profile(inst, rad(sc.theta), rad(sc.phi), rad(xi))
     chi2, dof = chi_square(P, mc.counts, mc.n_photons)
     assert chi2 > stats.chi2.isf(_ALPHA / 2, dof)
 
@@ -151,9 +154,10 @@ def test_binned_angles_match_bin_average():
     sc = get_scenario("wide50")
     inst = sc.instrument()
     edges = np.linspace(0, 2 * np.pi, 49)
-    mc = simulate_profiles(inst, sc.theta, sc.phi, xi_edges=edges, n_photons=40_000, seed=5)
+    mc = simulate_profiles(inst, rad(sc.theta), rad(sc.phi), xi_edges=rad(edges),
+                           n_photons=40_000, seed=5)
     sub = (np.arange(48 * 16) + 0.5) * (2 * np.pi / (48 * 16))
-    P = get_model("exact").profile(inst, sc.theta, sc.phi, sub)
+    P = get_model("exact").profile(inst, rad(sc.theta), rad(sc.phi), rad(sub))
     P = P.reshape(P.shape[0], 48, 16, -1).mean(axis=2)
     chi2, dof = chi_square(P, mc.counts, mc.n_photons)
     assert chi2 < stats.chi2.isf(1e-3, dof)
@@ -164,13 +168,14 @@ def test_opaque_and_transparent_limits():
     xi = np.linspace(0, 2 * np.pi, 16, endpoint=False)
     clear = _inst()
     clear = Instrument(dataclasses.replace(clear.mask, mu=0.0), clear.detectors)
-    assert np.all(simulate_profiles(clear, 0.3, 0.1, xi, n_photons=1000, seed=1).counts == 1000)
+    assert np.all(simulate_profiles(clear, rad(0.3), rad(0.1), rad(xi), n_photons=1000,
+                                    seed=1).counts == 1000)
     # Opaque thin mask (h = 0, mu = inf): exactly the open fraction of the disc; the exact
     # model treats the slats as opaque strips in that limit too.
     m = Mask(4.0, 4.0, 0.0, 100.0, mu=np.inf)
     inst = Instrument(m, DetectorArray.single(4.0, 1.0, 0.5))
-    mc = simulate_profiles(inst, 0.1, 0.4, xi, n_photons=20_000, seed=2)
-    P = get_model("exact").profile(inst, 0.1, 0.4, xi)
+    mc = simulate_profiles(inst, rad(0.1), rad(0.4), rad(xi), n_photons=20_000, seed=2)
+    P = get_model("exact").profile(inst, rad(0.1), rad(0.4), rad(xi))
     chi2, dof = chi_square(P, mc.counts, mc.n_photons)
     assert chi2 < stats.chi2.isf(1e-3, dof)
 
@@ -185,22 +190,24 @@ def test_seed_reproduces_independent_of_threads():
     n0 = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        r1 = simulate_profiles(inst, [0.2, 0.5], [0.0, 1.0], xi, **kw)
+        r1 = simulate_profiles(inst, rad([0.2, 0.5]), rad([0.0, 1.0]), rad(xi), **kw)
     finally:
         numba.set_num_threads(n0)
-    r2 = simulate_profiles(inst, [0.2, 0.5], [0.0, 1.0], xi, **kw)
+    r2 = simulate_profiles(inst, rad([0.2, 0.5]), rad([0.0, 1.0]), rad(xi), **kw)
     assert np.array_equal(r1.counts, r2.counts)
-    r3 = simulate_profiles(inst, [0.2, 0.5], [0.0, 1.0], xi, **{**kw, "seed": 43})
+    r3 = simulate_profiles(inst, rad([0.2, 0.5]), rad([0.0, 1.0]), rad(xi), **{**kw, "seed": 43})
     assert not np.array_equal(r1.counts, r3.counts)
-    g1 = simulate_profiles(inst, 0.2, 0.0, xi, n_photons=1000, seed=np.random.default_rng(7))
-    g2 = simulate_profiles(inst, 0.2, 0.0, xi, n_photons=1000, seed=np.random.default_rng(7))
+    g1 = simulate_profiles(inst, rad(0.2), 0.0, rad(xi), n_photons=1000,
+                           seed=np.random.default_rng(7))
+    g2 = simulate_profiles(inst, rad(0.2), 0.0, rad(xi), n_photons=1000,
+                           seed=np.random.default_rng(7))
     assert np.array_equal(g1.counts, g2.counts)
 
 
 def test_progress_callback_reports_total():
     inst = _inst()
     seen = []
-    simulate_profiles(inst, 0.2, 0.0, [0.0, 1.0], n_photons=3000, seed=1, chunk_size=1000,
+    simulate_profiles(inst, rad(0.2), 0.0, rad([0.0, 1.0]), n_photons=3000, seed=1, chunk_size=1000,
                       progress=lambda done, tot: seen.append((done, tot)))
     assert seen[-1] == (6000, 6000)
 
@@ -229,21 +236,21 @@ def test_poisson_sampler_moments(lam):
 def test_bad_input_names_parameter():
     inst = _inst()
     with pytest.raises(ParameterError, match="theta must be <"):
-        simulate_profiles(inst, np.pi / 2, 0.0, [0.0], n_photons=10)
+        simulate_profiles(inst, rad(np.pi / 2), 0.0, [0.0], n_photons=10)
     with pytest.raises(ParameterError, match="n_photons must be an integer >= 1"):
-        simulate_profiles(inst, 0.1, 0.0, [0.0], n_photons=0)
+        simulate_profiles(inst, rad(0.1), 0.0, [0.0], n_photons=0)
     with pytest.raises(ParameterError, match="exactly one of xi"):
-        simulate_profiles(inst, 0.1, 0.0, [0.0], xi_edges=[0, 1], n_photons=10)
+        simulate_profiles(inst, rad(0.1), 0.0, [0.0], xi_edges=rad([0, 1]), n_photons=10)
     with pytest.raises(ParameterError, match="xi_edges must hold"):
-        simulate_profiles(inst, 0.1, 0.0, xi_edges=[1.0, 0.0], n_photons=10)
+        simulate_profiles(inst, rad(0.1), 0.0, xi_edges=rad([1.0, 0.0]), n_photons=10)
     with pytest.raises(ParameterError, match="RandomState"):
-        simulate_profiles(inst, 0.1, 0.0, [0.0], n_photons=10, seed=np.random.RandomState(1))
+        simulate_profiles(inst, rad(0.1), 0.0, [0.0], n_photons=10, seed=np.random.RandomState(1))
     with pytest.raises(ParameterError, match="rate must be >= 0"):
-        PointSources([0.1], [0.0], rate=-1.0)
+        PointSources(rad([0.1]), [0.0], rate=-1.0)
     with pytest.raises(ParameterError, match="theta must be <"):
-        PointSources([np.radians(90.0)], [0.0])
+        PointSources(rad([np.radians(90.0)]), [0.0])
     with pytest.raises(ParameterError, match="image must have at least one pixel"):
-        PointSources.from_image([0.1], [0.0], [0.0])
+        PointSources.from_image(rad([0.1]), [0.0], [0.0])
 
 
 def test_exact_model_continuous_at_alignment():
@@ -254,5 +261,5 @@ def test_exact_model_continuous_at_alignment():
     inst = sc.instrument()
     xi = np.linspace(0, 2 * np.pi, 180, endpoint=False)[30]
     th, ph = sc.theta[:1], np.radians([30.0])
-    P = get_model("exact").profile(inst, th, ph, [xi, xi + 1e-9])
+    P = get_model("exact").profile(inst, rad(th), rad(ph), rad([xi, xi + 1e-9]))
     assert abs(P[0, 0, 0] - P[0, 1, 0]) < 1e-6

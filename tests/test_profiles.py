@@ -5,11 +5,13 @@ from __future__ import annotations
 import itertools
 import math
 
+import astropy.units as u
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import rad
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import Material
@@ -63,7 +65,8 @@ def test_advanced_exact_g1_equals_exact(rng):
     worst = 0.0
     for _ in range(120):
         inst, theta, phi, xi = _valid_case(rng)
-        d = np.abs(adv.profile(inst, theta, phi, xi) - ex.profile(inst, theta, phi, xi))
+        d = np.abs(adv.profile(inst, rad(theta), rad(phi), rad(xi)) - ex.profile(inst, rad(theta),
+                                                                                 rad(phi), rad(xi)))
         worst = max(worst, float(d.max()))
     # The bound is 1e-6; measured 7e-14.  1e-11 catches a slip in the advanced
     # model's G1 bookkeeping (clip limits, mirrored second term) far below the bound.
@@ -77,8 +80,8 @@ def test_advanced_opaque_against_reference(reference, rng):
     inst = Instrument(Mask(a, b, h, 100.0, mu=np.inf), DetectorArray([[3.0, -7.0]], c))
     theta, phi = np.radians([10.0, 55.0]), np.array([0.4, -2.0])
     xi = rng.uniform(0, 2 * np.pi, 12)
-    got = get_model("advanced").profile(inst, theta, phi, xi)
-    geom = project(inst, theta, phi)
+    got = get_model("advanced").profile(inst, rad(theta), rad(phi), rad(xi))
+    geom = project(inst, rad(theta), rad(phi))
     uc, s = geom.mask_coordinates(xi)
     for t in range(xi.size):
         for n in range(2):
@@ -117,10 +120,10 @@ def test_profiles_between_zero_and_one(a, b, c, h, mu, theta, phi, x0, y0):
     if h * math.tan(theta) <= min(a, b):
         names += ["advanced", "advanced-approx", "advanced-g0"]
     for name in names:
-        p = get_model(name).profile(inst, [theta], [phi], xi)
+        p = get_model(name).profile(inst, rad([theta]), rad([phi]), rad(xi))
         assert np.all((p >= 0.0) & (p <= 1.0)), name
     if math.isclose(a, b) and math.isclose(a, c):
-        p = StandardModel(0.3).profile(inst, [theta], [phi], xi)
+        p = StandardModel(0.3).profile(inst, rad([theta]), rad([phi]), rad(xi))
         assert np.all((p >= 0.0) & (p <= 1.0))
 
 
@@ -134,8 +137,9 @@ def test_profiles_repeat_every_half_turn(paper_instrument, rng, name):
     phi = rng.uniform(-np.pi, np.pi, 8)
     xi = rng.uniform(0, np.pi, 25)
     model = get_model(name)
-    np.testing.assert_allclose(model.profile(inst, theta, phi, xi + np.pi),
-                               model.profile(inst, theta, phi, xi), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(model.profile(inst, rad(theta), rad(phi), rad(xi + np.pi)),
+                               model.profile(inst, rad(theta), rad(phi),
+                                             rad(xi)), rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", ["advanced", "advanced-approx", "advanced-g0", "exact"])
@@ -146,17 +150,18 @@ def test_opaque_closed_mask_and_transparent_mask(name, rng):
     # b = 0, opaque: nothing gets through (theta = 0 keeps the advanced model valid).
     closed = Instrument(Mask(3.0, 0.0, 1.0, 80.0, mu=np.inf), det)
     theta = [0.0] if name != "exact" else [0.0, 0.4, 1.2]
-    assert np.all(model.profile(closed, theta, [0.0] * len(theta), xi) == 0.0)
+    assert np.all(model.profile(closed, rad(theta), rad([0.0] * len(theta)), rad(xi)) == 0.0)
     # mu = 0: everything gets through, whatever the geometry.
     clear = Instrument(Mask(3.0, 2.0, 1.5, 80.0, mu=0.0), det)
-    assert np.all(model.profile(clear, [0.0, 0.5], [0.3, 2.0], xi) == 1.0)
+    assert np.all(model.profile(clear, rad([0.0, 0.5]), rad([0.3, 2.0]), rad(xi)) == 1.0)
 
 
 def test_standard_transmission_limits(paper_instrument, rng):
     xi = rng.uniform(0, 2 * np.pi, 20)
-    assert np.all(StandardModel(1.0).profile(paper_instrument, [0.1], [0.2], xi) == 1.0)
-    p0 = StandardModel(0.0).profile(paper_instrument, [0.1], [0.2], xi)
-    p3 = StandardModel(0.3).profile(paper_instrument, [0.1], [0.2], xi)
+    assert np.all(StandardModel(1.0).profile(paper_instrument, rad([0.1]), rad([0.2]),
+                                             rad(xi)) == 1.0)
+    p0 = StandardModel(0.0).profile(paper_instrument, rad([0.1]), rad([0.2]), rad(xi))
+    p3 = StandardModel(0.3).profile(paper_instrument, rad([0.1]), rad([0.2]), rad(xi))
     np.testing.assert_allclose(p3, 1 - 0.7 * (1 - p0), atol=1e-15)
 
 
@@ -174,7 +179,7 @@ def test_rotation_mean_tends_to_open_fraction(a, b):
     for periods in (100, 1000):
         r = periods * p
         inst = Instrument(Mask(a, b, 0.0, 100.0, mu=np.inf), DetectorArray.single(a, r, 0.0))
-        mean = get_model(name).profile(inst, [0.0], [0.0], xi).mean()
+        mean = get_model(name).profile(inst, [0.0], [0.0], rad(xi)).mean()
         errs.append(abs(mean - b / p))
         assert errs[-1] <= 0.53 * math.sqrt(p / r)
 
@@ -187,13 +192,13 @@ def test_g1_approximation_error_bound(rng):
     # the paper's scenarios are tabulated by scripts/g1_error.py in docs/physics.md.
     for _ in range(40):
         inst, theta, phi, xi = _valid_case(rng)
-        geom = project(inst, theta, phi)
+        geom = project(inst, rad(theta), rad(phi))
         al = alpha_factor(geom.tau)
         e = np.exp(-geom.tau)
         ratio = np.where(al > 0, np.maximum(al, 1 - e - al) / np.where(al > 0, al, 1), 0.0)
-        p_ex = get_model("advanced").profile(inst, theta, phi, xi)
-        p_ap = get_model("advanced-approx").profile(inst, theta, phi, xi)
-        p_g0 = get_model("advanced-g0").profile(inst, theta, phi, xi)
+        p_ex = get_model("advanced").profile(inst, rad(theta), rad(phi), rad(xi))
+        p_ap = get_model("advanced-approx").profile(inst, rad(theta), rad(phi), rad(xi))
+        p_g0 = get_model("advanced-g0").profile(inst, rad(theta), rad(phi), rad(xi))
         bound = ratio * (p_ap - p_g0) + 1e-12  # + round-off of the three evaluations
         assert np.all(np.abs(p_ap - p_ex) <= bound)
 
@@ -208,7 +213,7 @@ def test_printed_slips_are_slips():
     # Feed the advanced model the printed variants and show that only ours matches the exact
     # model (to 1e-9 here: G0 + exact G1, closed forms and matching quadrature).
     inst, theta, phi, xi = _paper_case()
-    geom = project(inst, theta, phi)
+    geom = project(inst, rad(theta), rad(phi))
     uc, s = (v[0, :, 0] if v.ndim == 3 else v[:, 0] for v in geom.mask_coordinates(xi))
     m, c = inst.mask, inst.detectors.diameter
     tau = float(geom.tau[0])
@@ -255,8 +260,8 @@ def test_float32_output(paper_instrument, rng):
     xi = rng.uniform(0, 6.3, 7)
     for name in ALL:
         m = get_model(name)
-        p64 = m.profile(paper_instrument, theta, phi, xi)
-        p32 = m.profile(paper_instrument, theta, phi, xi, dtype=np.float32)
+        p64 = m.profile(paper_instrument, rad(theta), rad(phi), rad(xi))
+        p32 = m.profile(paper_instrument, rad(theta), rad(phi), rad(xi), dtype=np.float32)
         assert p32.dtype == np.float32
         # float32 rounding of values in [0, 1]: half an ulp at 1 is 6e-8.
         np.testing.assert_allclose(p32, p64, rtol=0, atol=6e-8)
@@ -283,7 +288,7 @@ def test_standard_refuses_unequal_sizes(a, b, c):
     inst = Instrument(Mask(a, b, 1.0, 100.0, mu=np.inf), DetectorArray.single(c))
     match = r"slat width a = slat gap b = detector diameter c.*'advanced' or 'exact'"
     with pytest.raises(ModelValidityError, match=match):
-        get_model("standard").profile(inst, [0.1], [0.0], [0.0])
+        get_model("standard").profile(inst, rad([0.1]), [0.0], [0.0])
 
 
 @pytest.mark.parametrize(("a", "b", "which"), [(1.0, 4.0, "a'"), (4.0, 1.0, "b'")])
@@ -293,34 +298,34 @@ def test_advanced_refuses_invalid_sources(a, b, which):
     for variant in ("advanced", "advanced-approx", "advanced-g0"):
         with pytest.raises(ModelValidityError,
                            match=rf"min {which}\(t\).*source 1 at theta = 40 deg.*'exact'"):
-            get_model(variant).profile(inst, np.radians([10.0, 40.0]), [0.0, 0.0], [0.0])
+            get_model(variant).profile(inst, [10.0, 40.0], [0.0, 0.0], [0.0])
     # The requested angles do not matter: validity is over a whole rotation.
     with pytest.raises(ModelValidityError):
-        get_model("advanced").profile(inst, np.radians([40.0]), [0.0], [0.0 + np.pi / 2])
-    get_model("advanced").profile(inst, np.radians([10.0]), [0.0], [0.0])  # fine
+        get_model("advanced").profile(inst, [40.0], [0.0], rad([0.0 + np.pi / 2]))
+    get_model("advanced").profile(inst, [10.0], [0.0], [0.0])  # fine
 
 
 @pytest.mark.parametrize(
     ("theta", "match"),
-    [([np.pi / 2], "theta must be < 1.5708"), ([1.7], "theta must be < "),
+    [([90.0], "theta must be < 90 deg"), ([1.7 * u.rad], "theta must be < 90 deg"),
      ([-0.1], "theta must be >= 0"), ([np.nan], "theta must be finite")],
 )
 def test_bad_source_directions(paper_instrument, theta, match):
     for name in ALL:
         with pytest.raises(ParameterError, match=match):
-            get_model(name).profile(paper_instrument, theta, [0.0], [0.0])
+            get_model(name).profile(paper_instrument, rad(theta), [0.0], [0.0])
 
 
 def test_bad_angles_and_energy(paper_instrument):
     with pytest.raises(ParameterError, match="xi must be finite"):
-        get_model("exact").profile(paper_instrument, [0.1], [0.0], [np.nan])
+        get_model("exact").profile(paper_instrument, rad([0.1]), [0.0], rad([np.nan]))
     with pytest.raises(ParameterError, match="phi must be finite"):
-        get_model("advanced").profile(paper_instrument, [0.1], [np.inf], [0.0])
+        get_model("advanced").profile(paper_instrument, rad([0.1]), rad([np.inf]), [0.0])
     db_mask = Instrument(Mask(4.0, 4.0, 2.0, 100.0, "Pb"), DetectorArray.single(4.0))
     with pytest.raises(ParameterError, match="energy is required"):
-        get_model("exact").profile(db_mask, [0.1], [0.0], [0.0])
+        get_model("exact").profile(db_mask, rad([0.1]), [0.0], [0.0])
     with pytest.raises(ParameterError, match="dtype must be float32 or float64"):
-        get_model("exact").profile(paper_instrument, [0.1], [0.0], [0.0], dtype=np.int32)
+        get_model("exact").profile(paper_instrument, rad([0.1]), [0.0], [0.0], dtype=np.int32)
 
 
 def test_rows_kernel_matches_point_formula(rng):
@@ -340,11 +345,11 @@ def test_rows_kernel_matches_point_formula(rng):
         inst = Instrument(mask, DetectorArray(rng.uniform(-30, 30, (2, 2)), c))
         theta, phi = rng.uniform(0, math.radians(30), 40), rng.uniform(0, 2 * np.pi, 40)
         xi = rng.uniform(0, 2 * np.pi, 7)
-        geom = project(inst, theta, phi)
+        geom = project(inst, rad(theta), rad(phi))
         alpha = alpha_factor(geom.tau)
         n_slats = int(np.floor((a + h * np.tan(theta).max() + c) / (a + b))) + 1
         for name, mode in (("advanced-approx", 2), ("advanced-g0", 0)):
-            P = get_model(name).profile(inst, theta, phi, xi)
+            P = get_model(name).profile(inst, rad(theta), rad(phi), rad(xi))
             for d, t, n in itertools.product(range(2), range(7), range(40)):
                 uc = geom.X[d, n] * np.cos(xi[t]) - geom.Y[d, n] * np.sin(xi[t])
                 s = geom.Sx[n] * np.cos(xi[t]) - geom.Sy[n] * np.sin(xi[t])

@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, RotmodError, get_model
 from rotmod.materials import Material
 from rotmod.reconstruction import (
@@ -51,7 +52,7 @@ def small() -> Dense:
     grid = SkyGrid((11, 11), 0.6)
     th, ph = grid.directions()
     xi = (np.arange(90) + 0.5) * 2 * np.pi / 90
-    return Dense(get_model("standard").profile(inst, th, ph, xi), grid)
+    return Dense(get_model("standard").profile(inst, rad(th), rad(ph), rad(xi)), grid)
 
 
 def _point(R: Dense, iy: int, ix: int, flux: float = 5.0) -> np.ndarray:

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.sparse.linalg import lsqr
 
+from conftest import rad
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.profiles import get_model
@@ -86,7 +87,8 @@ def test_average_converges_with_n_sub(inst, grid):
     tb = TimeBinning(24)
     # Reference bin means from a dense midpoint rule (400 samples per bin).
     dense = TimeBinning(24, "average", 400).sub_angles()
-    ref = model.profile(inst, theta, phi, dense.T.ravel()).reshape(7, 24, 400, -1).mean(axis=2)
+    ref = model.profile(inst, rad(theta), rad(phi), rad(dense.T.ravel())).reshape(7, 24, 400,
+                                                                                  -1).mean(axis=2)
     errs = []
     for n_sub in (1, 2, 4, 8, 16):
         r = build_response(inst, grid, TimeBinning(24, "average", n_sub), dtype=np.float64)
@@ -108,7 +110,8 @@ def test_columns_equal_model_profile(inst, grid, mat):
     theta, phi = grid.directions()
     model = get_model("advanced-approx")
     for n in (0, 17, 40, 71):
-        col = model.profile(inst, theta[n], phi[n], TimeBinning(48).angles())[:, :, 0]
+        col = model.profile(inst, rad(theta[n]), rad(phi[n]), rad(TimeBinning(48).angles()))[:, :,
+                                                                                             0]
         # Same kernel on the same float64 inputs; the kernels may vectorise over the sky
         # axis (SIMD lanes vs scalar tail), which changes the last bit or two: 1e-14.
         np.testing.assert_allclose(mat.matrix[:, :, n], col, rtol=0, atol=1e-14)
@@ -262,7 +265,8 @@ def test_half_turn_symmetry(inst, grid):
     for n_bins, distinct in ((20, 10), (15, 15)):
         plan = make_plan(inst, grid, n_bins, "exact", dtype=np.float64)
         assert plan.n_distinct == distinct
-        ref = get_model("exact").profile(inst, theta, phi, TimeBinning(n_bins).angles())
+        ref = get_model("exact").profile(inst, rad(theta), rad(phi),
+                                         rad(TimeBinning(n_bins).angles()))
         for op in (
             build_response(inst, grid, n_bins, "exact", dtype=np.float64),
             MatrixFreeResponse(inst, grid, n_bins, "exact", block_size=(3, 40)).materialise(),
@@ -280,7 +284,7 @@ def test_other_models_build(inst, grid):
     xi = TimeBinning(16).angles()
     for name in ("advanced-g0", "exact"):
         r = build_response(inst, grid, 16, name, dtype=np.float64)
-        p = get_model(name).profile(inst, theta, phi, xi)
+        p = get_model(name).profile(inst, rad(theta), rad(phi), rad(xi))
         np.testing.assert_allclose(r.matrix, p, rtol=0, atol=1e-14)  # same kernel call
 
 

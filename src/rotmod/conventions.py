@@ -5,8 +5,10 @@ Every model, the Monte Carlo, the response and the reconstruction follow these r
 
 Frames and units
 ----------------
-* Canonical units: lengths in cm, angles in rad, energies in keV, times in s.  Public
-  functions accept `astropy.units.Quantity` and strip units at the boundary.
+* Canonical units inside the code: lengths in cm, angles in rad, energies in keV, times in s.
+  Public functions accept `astropy.units.Quantity` everywhere; a plain number is in cm, keV
+  or s, and a plain *angle* is in degrees (``rotmod._validate.as_angle``); angles that public
+  objects return are Quantities (docs/conventions.md, "Units").
 * Lab frame: right-handed, ``z`` up toward the sky, origin on the rotation axis in the
   detector plane ``z = 0``.  Detector faces are discs in ``z = 0``.
 * The mask slab occupies ``L <= z <= L + h``.

@@ -276,9 +276,9 @@ def scan_designs(
     # Azimuths over half a turn suffice: with the gap centred on the axis, (theta, phi) and
     # (theta, phi + pi) give the same profile on an on-axis detector.
     phi_r = (np.arange(n_phi) + 0.5) * (np.pi / n_phi)
-    th, ph = (a.ravel() for a in np.meshgrid(theta_r, phi_r, indexing="ij"))
+    th, ph = (a.ravel() * u.rad for a in np.meshgrid(theta_r, phi_r, indexing="ij"))
     theta_max = float(np.arctan(np.tan(half))) if f > 0 else 0.0
-    xi = (np.arange(n_angles) + 0.5) * (np.pi / n_angles)
+    xi = (np.arange(n_angles) + 0.5) * (np.pi / n_angles) * u.rad
     det = DetectorArray.single(c)
     exact = get_model("exact")
     advanced = get_model("advanced")
@@ -301,7 +301,7 @@ def scan_designs(
         out["ma"][i], out["mb"][i] = a - smax, b - smax
         inst = Instrument(Mask(a, b, h, L, mat, mu=mus[0]), det)
         try:
-            advanced.check_validity(inst, project(inst, [theta_max], [0.0]))
+            advanced.check_validity(inst, project(inst, [theta_max] * u.rad, [0.0]))
             valid[i] = True
         except ModelValidityError:
             valid[i] = False

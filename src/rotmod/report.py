@@ -275,7 +275,7 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     grid = SkyGrid(cfg["speed_grid"], 14.0 / cfg["speed_grid"][0])
     theta, phi = grid.directions()
     n_bins = cfg["speed_bins"]
-    xi = (np.arange(n_bins) + 0.5) * (2 * np.pi / n_bins)
+    xi = (np.arange(n_bins) + 0.5) * (360.0 / n_bins)  # deg
     rows = []
     for name in ("standard", "advanced-g0", "advanced-approx", "exact"):
         if name not in MODELS:
@@ -295,7 +295,7 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     rng = np.random.default_rng(seed)
     pick = rng.choice(theta.size, size=min(64, theta.size), replace=False)
     n_ang = 56
-    xi_mc = (np.arange(n_ang) + 0.5) * (2 * np.pi / n_ang)
+    xi_mc = (np.arange(n_ang) + 0.5) * (360.0 / n_ang)  # deg
     per_cell = max(1, int(cfg["mc_photons"] // (pick.size * n_ang)))
     simulate_profiles(inst, theta[pick[:2]], phi[pick[:2]], xi_mc[:2], n_photons=1000, seed=0)
     t0 = time.perf_counter()
@@ -353,7 +353,7 @@ def _image_case(
         "background_per_det": sc.background_rate, "n_det": len(sc.instrument.detectors),
         "grid": sc.grid.to_dict(), "n_bins": tb.n_bins, "bin_mode": tb.mode,
         "resolution_deg": sc.resolution,
-        "sources_deg": np.degrees(np.column_stack(sc.sources)).tolist(),
+        "sources_deg": np.column_stack([v.to_value("deg") for v in sc.sources]).tolist(),
         "results": [],
     }
     images: dict[str, np.ndarray] = {}
@@ -380,7 +380,8 @@ def _image_case(
             out["results"].append({"model": model, "method": method, **m})
             images[f"{model}|{method}"] = res.image
     np.savez_compressed(tmp / f"{prefix}_{name}.npz",
-                        theta=sc.theta, phi=sc.phi, **images)
+                        theta_deg=sc.theta.to_value("deg"), phi_deg=sc.phi.to_value("deg"),
+                        **images)
     if images:
         keys = list(images)
         fig, axes = plt.subplots(1, len(keys), figsize=(3.3 * len(keys), 3.2), squeeze=False)
@@ -463,7 +464,7 @@ def _step_summary(out: Path, tmp: Path, log: Callable) -> dict[str, Any]:
         grid = SkyGrid.from_dict(case["grid"])
         for j, k in enumerate((ks, ke)):
             ax = fig.add_subplot(gs[1, j])
-            plot_image(d[k], grid, sources=(d["theta"], d["phi"]), ax=ax,
+            plot_image(d[k], grid, sources=(d["theta_deg"], d["phi_deg"]), ax=ax,
                        title=f"{k.replace('|', ' response + ')} ({case['name']}: "
                              f"{case['energy_keV']:g} keV)")
     else:

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 
 from rotmod.errors import ModelValidityError, ParameterError
@@ -92,14 +93,14 @@ class Scenario:
         )
 
     @property
-    def theta(self) -> np.ndarray:
-        """Source zeniths (rad), one per azimuth."""
-        return np.full(len(self.phi_deg), np.radians(self.theta_deg))
+    def theta(self) -> u.Quantity:
+        """Source zeniths, one per azimuth."""
+        return np.full(len(self.phi_deg), self.theta_deg) * u.deg
 
     @property
-    def phi(self) -> np.ndarray:
-        """Source azimuths (rad)."""
-        return np.radians(np.asarray(self.phi_deg, dtype=float))
+    def phi(self) -> u.Quantity:
+        """Source azimuths."""
+        return np.asarray(self.phi_deg, dtype=float) * u.deg
 
 
 SCENARIOS: tuple[Scenario, ...] = (
@@ -238,15 +239,15 @@ def run_scenario(
     inst = sc.instrument()
     # Bin centres: an angle grid that avoids the exact-alignment angles xi + phi = pi/2 of
     # the scenarios' round azimuths.
-    xi = (np.arange(int(n_angles)) + 0.5) * (2 * np.pi / int(n_angles))
-    mc = simulate_profiles(inst, sc.theta, sc.phi, xi, n_photons=n_photons, seed=seed)
+    xi = (np.arange(int(n_angles)) + 0.5) * (2 * np.pi / int(n_angles))  # rad
+    mc = simulate_profiles(inst, sc.theta, sc.phi, xi * u.rad, n_photons=n_photons, seed=seed)
     res = ScenarioResult(sc, xi, mc)
     for name in models:
         if name not in MODELS:
             res.skipped[name] = "not registered"
             continue
         try:
-            P = get_model(name).profile(inst, sc.theta, sc.phi, xi)
+            P = get_model(name).profile(inst, sc.theta, sc.phi, xi * u.rad)
         except ModelValidityError as exc:
             res.skipped[name] = str(exc)
             continue

@@ -33,7 +33,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
 
     from rotmod.events import fold
     from rotmod.io import read_events, write_folded
@@ -53,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         import matplotlib.pyplot as plt
 
         fig, ax = plt.subplots(figsize=(7, 3))
-        deg = np.degrees(folded.bin_centers)
+        deg = folded.bin_centers.to_value("deg")
         for d in range(min(folded.counts.shape[0], 7)):
             ax.errorbar(deg, folded.rate[d], folded.error[d], fmt=".", ms=2, lw=0.5,
                         label=f"detector {d}")

@@ -75,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--detector: must be in 0..{n_det - 1}, got {args.detector}")
         dets = [args.detector]
     src = np.array(args.source, dtype=float)
-    theta, phi = np.radians(src[:, 0]), np.radians(src[:, 1])
-    xi = (np.arange(args.angles) + 0.5) * (2 * np.pi / args.angles)
+    theta, phi = src[:, 0], src[:, 1]  # deg, the library's meaning of a plain angle
+    xi = (np.arange(args.angles) + 0.5) * (360.0 / args.angles)
     explicit = args.model is not None
     names = list(dict.fromkeys(args.model or DEFAULT_MODELS))
     for n in names:
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
                 rows["source"] += [s] * xi.size
                 rows["theta"] += [src[s, 0]] * xi.size
                 rows["phi"] += [src[s, 1]] * xi.size
-                rows["xi"] += np.degrees(xi).tolist()
+                rows["xi"] += xi.tolist()
                 rows["profile"] += P[d, :, s].tolist()
     t = Table(rows)
     for col in ("theta", "phi", "xi"):

@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         if args.mark:
             from rotmod.cli._common import parse_source
 
-            m = np.radians(np.array([parse_source(t) for t in args.mark]))
+            m = np.array([parse_source(t) for t in args.mark])  # deg
             marks = (m[:, 0], m[:, 1])
         ax = plot_image(res.image, res.grid, sources=marks,
                         title=f"{args.method} ({response.metadata()['model']['model']})")

@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     energy = energy_of(args, cfg)
     src = [s if len(s) == 3 else (*s, 10.0) for s in args.source]
     arr = np.array(src, dtype=float)
-    sources = PointSources(np.radians(arr[:, 0]), np.radians(arr[:, 1]), arr[:, 2], energy)
+    sources = PointSources(arr[:, 0], arr[:, 1], arr[:, 2], energy)  # deg
     events = simulate_observation(
         inst, sources, t_stop=args.exposure, background=args.background, seed=args.seed,
         progress=progress_wanted(args),

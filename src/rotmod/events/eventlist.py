@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_array, as_scalar
+from rotmod._validate import as_angle_scalar, as_array, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.gti import check_gti
 from rotmod.geometry import Instrument
@@ -45,8 +45,9 @@ class EventList:
         The instrument, including its rotation period.
     gti : array_like, shape (k, 2)
         Good-time intervals (s); every event lies in one.
-    start_phase : float
-        Mask angle at ``time = 0`` (rad): ``xi(t) = 2 pi t / rotation_period + start_phase``.
+    start_phase : float or Quantity
+        Mask angle at ``time = 0`` (deg if a plain number; held as a Quantity in rad):
+        ``xi(t) = 2 pi t / rotation_period + start_phase``.
     t_start, t_stop : float, optional
         Exposure bounds (s); default the first GTI start and the last GTI stop.
     source : array_like of int, shape (n,), optional
@@ -63,7 +64,7 @@ class EventList:
     energy: np.ndarray
     instrument: Instrument
     gti: np.ndarray
-    start_phase: float = 0.0
+    start_phase: Any = 0.0
     t_start: float | None = None
     t_stop: float | None = None
     source: np.ndarray | None = None
@@ -96,7 +97,7 @@ class EventList:
             raise ParameterError(f"events.energy must have shape ({n},), got {e.shape}")
         if n > 1 and np.any(np.diff(t) < 0):
             raise ParameterError("events.time must be sorted in increasing order")
-        phase = as_scalar(self.start_phase, "start_phase", u.rad)
+        phase = as_angle_scalar(self.start_phase, "start_phase") * u.rad
         gti = check_gti(self.gti, self.t_start, self.t_stop)
         t0 = float(gti[0, 0]) if self.t_start is None else as_scalar(self.t_start, "t_start", u.s)
         t1 = float(gti[-1, 1]) if self.t_stop is None else as_scalar(self.t_stop, "t_stop", u.s)
@@ -126,8 +127,8 @@ class EventList:
         """Total good time (s): the sum of the GTI lengths (no dead time is modelled)."""
         return float(np.sum(self.gti[:, 1] - self.gti[:, 0]))
 
-    def mask_angle(self) -> np.ndarray:
-        """Mask angle ``xi`` (rad, not wrapped) of every event."""
+    def mask_angle(self) -> u.Quantity:
+        """Mask angle ``xi`` (Quantity in rad, not wrapped) of every event."""
         return self.instrument.mask_angle(self.time) + self.start_phase
 
     def select(self, mask: np.ndarray) -> EventList:

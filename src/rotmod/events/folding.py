@@ -21,7 +21,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_scalar
+from rotmod._validate import as_angle, as_angle_scalar, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
 from rotmod.events.gti import check_gti
@@ -56,7 +56,7 @@ def exposure_per_bin(
     rotation_period : float or Quantity
         Mask rotation period (s), > 0.
     start_phase : float or Quantity
-        Mask angle at ``t = 0`` (rad).
+        Mask angle at ``t = 0`` (deg if a plain number).
 
     Returns
     -------
@@ -66,7 +66,7 @@ def exposure_per_bin(
     g = check_gti(gti)
     n = _check_n_bins(n_bins)
     T = as_scalar(rotation_period, "rotation_period", u.s, lo=0.0, lo_open=True)
-    phase = as_scalar(start_phase, "start_phase", u.rad)
+    phase = as_angle_scalar(start_phase, "start_phase")
     q = _rotations(g, T, phase)  # (k, 2)
     lo = np.arange(n) / n
 
@@ -88,23 +88,23 @@ class FoldedProfiles:
         Events per detector and mask-angle bin.
     exposure : ndarray, shape (n_bins,) or (n_det, n_bins)
         Good time (s) in each bin (common to all detectors unless 2-D).
-    bin_edges : ndarray, shape (n_bins + 1,)
-        Mask-angle bin edges (rad), ``0 .. 2 pi``.
+    bin_edges : Quantity, shape (n_bins + 1,)
+        Mask-angle bin edges, ``0 .. 360 deg`` (deg if plain numbers; held in rad).
     instrument : Instrument
     gti : ndarray, shape (k, 2)
         Good-time intervals of the folded data (s).
-    start_phase : float
-        Mask angle at ``t = 0`` (rad).
+    start_phase : float or Quantity
+        Mask angle at ``t = 0`` (deg if a plain number; held as a Quantity in rad).
     meta : dict
         Free-form metadata (e.g. the event file's header values).
     """
 
     counts: np.ndarray
     exposure: np.ndarray
-    bin_edges: np.ndarray
+    bin_edges: Any
     instrument: Instrument
     gti: np.ndarray
-    start_phase: float = 0.0
+    start_phase: Any = 0.0
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -126,19 +126,23 @@ class FoldedProfiles:
             )
         if np.any(ex < 0) or not np.all(np.isfinite(ex)):
             raise ParameterError("exposure must be finite and >= 0 s")
-        edges = np.asarray(self.bin_edges, dtype=float)
+        edges = as_angle(self.bin_edges, "bin_edges")
         if edges.shape != (n_bins + 1,) or np.any(np.diff(edges) <= 0):
             raise ParameterError(
                 f"bin_edges must be {n_bins + 1} increasing mask angles, got shape {edges.shape}"
             )
         for name, val in (
-            ("counts", c.astype(np.int64)), ("exposure", ex), ("bin_edges", edges),
+            ("counts", c.astype(np.int64)), ("exposure", ex),
             ("gti", check_gti(self.gti)),
         ):
             val = np.array(val)
             val.flags.writeable = False
             object.__setattr__(self, name, val)
-        object.__setattr__(self, "start_phase", float(self.start_phase))
+        edges = np.array(edges) * u.rad
+        edges.flags.writeable = False
+        object.__setattr__(self, "bin_edges", edges)
+        phase = as_angle_scalar(self.start_phase, "start_phase") * u.rad
+        object.__setattr__(self, "start_phase", phase)
         object.__setattr__(self, "meta", dict(self.meta))
 
     @property
@@ -148,7 +152,7 @@ class FoldedProfiles:
 
     @property
     def bin_centers(self) -> np.ndarray:
-        """Mask angle at the centre of each bin (rad)."""
+        """Mask angle at the centre of each bin (Quantity, rad)."""
         return 0.5 * (self.bin_edges[1:] + self.bin_edges[:-1])
 
     @property
@@ -194,7 +198,8 @@ def fold(events: EventList, n_bins: int) -> FoldedProfiles:
     good = (i >= 0) & (t <= g[np.maximum(i, 0), 1])
     if not np.all(good):
         log.warning("fold: dropped %d events outside the good-time intervals", int((~good).sum()))
-    q = _rotations(t[good], inst.rotation_period, events.start_phase)
+    phase = events.start_phase.to_value(u.rad)
+    q = _rotations(t[good], inst.rotation_period, phase)
     k = np.minimum(((q - np.floor(q)) * n).astype(np.int64), n - 1)
     n_det = len(inst.detectors)
     counts = np.bincount(events.detector[good].astype(np.int64) * n + k, minlength=n_det * n)
@@ -202,7 +207,7 @@ def fold(events: EventList, n_bins: int) -> FoldedProfiles:
     return FoldedProfiles(
         counts.reshape(n_det, n),
         exposure,
-        np.linspace(0.0, 2 * np.pi, n + 1),
+        np.linspace(0.0, 2 * np.pi, n + 1) * u.rad,
         inst,
         g,
         events.start_phase,

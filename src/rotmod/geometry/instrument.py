@@ -8,7 +8,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_scalar
+from rotmod._validate import as_array, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.geometry.detectors import DetectorArray
 from rotmod.geometry.mask import Mask
@@ -56,9 +56,9 @@ class Instrument:
         """``omega = 2 pi / rotation_period`` (rad/s)."""
         return 2 * np.pi / self.rotation_period
 
-    def mask_angle(self, time: Any) -> np.ndarray:
-        """Mask angle ``xi`` (rad, not wrapped) at ``time`` (s)."""
-        return self.angular_speed * np.asarray(time, dtype=float)
+    def mask_angle(self, time: Any) -> u.Quantity:
+        """Mask angle ``xi`` (Quantity in rad, not wrapped) at ``time`` (s)."""
+        return self.angular_speed * as_array(time, "time", u.s) * u.rad
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-number description for metadata and files (round-trips :meth:`from_dict`)."""

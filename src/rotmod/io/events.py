@@ -11,9 +11,9 @@ Event files follow the usual layout of high-energy astronomy event lists (OGIP):
   ``ROT_PER``, ``ROT_PHA0``);
 * ``GTI`` (``START``, ``STOP``);
 * ``DETECTORS`` (``DET_ID``, ``DETX``, ``DETY`` in cm);
-* ``SOURCES`` (simulated ``THETA``, ``PHI`` in rad, ``RATE``, ``ENERGY``), when known.
+* ``SOURCES`` (simulated ``THETA``, ``PHI`` in deg, ``RATE``, ``ENERGY``), when known.
 
-Folded profiles are a ``PROFILES`` table (``BIN_LO``, ``BIN_HI`` in rad, ``EXPOSURE``,
+Folded profiles are a ``PROFILES`` table (``BIN_LO``, ``BIN_HI`` in deg, ``EXPOSURE``,
 ``COUNTS`` a vector of one entry per detector) with the same geometry keywords, ``GTI`` and
 ``DETECTORS``.  The geometry round-trips through :meth:`Instrument.to_dict` /
 :meth:`Instrument.from_dict`.  Writers refuse to overwrite unless asked and write
@@ -29,6 +29,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 from astropy.io import fits
 
@@ -64,7 +65,8 @@ def _instrument_cards(inst: Instrument, start_phase: float) -> list[tuple[str, A
         ("DET_DIAM", d["detectors"]["diameter"], "[cm] detector diameter c"),
         ("NDET", len(inst.detectors), "number of detectors"),
         ("ROT_PER", d["rotation_period"], "[s] mask rotation period"),
-        ("ROT_PHA0", start_phase, "[rad] mask angle at TIME = 0"),
+        ("ROT_PHA0", float(u.Quantity(start_phase, u.rad).to_value(u.deg)),
+         "[deg] mask angle at TIME = 0"),
     ]
     return cards
 
@@ -169,6 +171,43 @@ def _col(data: Any, name: str, path: Any, ext: str) -> np.ndarray:
     if data is None or name not in data.columns.names:
         raise RotmodError(f"file {str(path)!r}: {ext} table lacks column {name}")
     return np.asarray(data[name])
+
+
+def _to_unit(value: Any, declared: str | None, unit: u.UnitBase, what: str, path: Any) -> Any:
+    """``value`` in the file's ``declared`` unit (``unit`` when none), converted to ``unit``."""
+    if not declared:
+        return value
+    try:
+        file_unit = u.Unit(declared, format="ogip", parse_strict="raise")
+        return u.Quantity(value, file_unit).to_value(unit)
+    except (ValueError, u.UnitsError) as exc:
+        raise RotmodError(
+            f"file {str(path)!r}: {what} has unit {declared!r}, which is not a unit of {unit}"
+        ) from exc
+
+
+def _col_in(data: Any, name: str, path: Any, ext: str, unit: u.UnitBase) -> np.ndarray:
+    """Column ``name`` converted to ``unit`` following its TUNIT (files without TUNIT: ``unit``)."""
+    col = _col(data, name, path, ext)
+    if not np.issubdtype(col.dtype, np.number):
+        raise RotmodError(
+            f"file {str(path)!r}: {ext} column {name} must be numeric, got {col.dtype}"
+        )
+    declared = data.columns[name].unit
+    return np.asarray(_to_unit(col.astype(float), declared, unit, f"{ext} column {name}", path))
+
+
+def _key_in(header: Any, key: str, default: float, unit: u.UnitBase, path: Any) -> float:
+    """Header value in ``unit``; the OGIP ``[unit]`` at the start of the comment says its unit."""
+    if key not in header:
+        return default
+    value = header[key]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise RotmodError(f"file {str(path)!r}: keyword {key} must be a number, got {value!r}")
+    comment = header.comments[key]
+    has_unit = comment.startswith("[") and "]" in comment
+    declared = comment[1 : comment.index("]")] if has_unit else None
+    return float(_to_unit(float(value), declared, unit, f"keyword {key}", path))
 
 
 def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> Instrument:
@@ -278,8 +317,8 @@ def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool 
         hdus.append(
             fits.BinTableHDU.from_columns(
                 [
-                    fits.Column("THETA", "D", unit="rad", array=s.theta),
-                    fits.Column("PHI", "D", unit="rad", array=s.phi),
+                    fits.Column("THETA", "D", unit="deg", array=s.theta.to_value(u.deg)),
+                    fits.Column("PHI", "D", unit="deg", array=s.phi.to_value(u.deg)),
                     fits.Column("RATE", "D", unit="1/s", array=s.rate),
                     fits.Column("ENERGY", "D", unit="keV", array=s.energy),
                 ],
@@ -315,8 +354,9 @@ def read_events(path: str | os.PathLike) -> EventList:
         if "SOURCES" in hdul:
             sd = hdul["SOURCES"].data
             sources = PointSources(
-                *(np.asarray(_col(sd, c, path, "SOURCES"), float)
-                  for c in ("THETA", "PHI", "RATE", "ENERGY"))
+                *(_col_in(sd, c, path, "SOURCES", un) * un for c, un in (
+                    ("THETA", u.deg), ("PHI", u.deg), ("RATE", 1 / u.s), ("ENERGY", u.keV)
+                ))
             )
         try:
             return EventList(
@@ -325,7 +365,7 @@ def read_events(path: str | os.PathLike) -> EventList:
                 np.asarray(_col(ev.data, "ENERGY", path, "EVENTS"), dtype=np.float32),
                 inst,
                 gti,
-                float(h.get("ROT_PHA0", 0.0)),
+                _key_in(h, "ROT_PHA0", 0.0, u.deg, path) * u.deg,
                 float(_key(h, "TSTART", path, "EVENTS")),
                 float(_key(h, "TSTOP", path, "EVENTS")),
                 src,
@@ -360,8 +400,8 @@ def write_folded(
     n_det = folded.counts.shape[0]
     ex = folded.exposure
     cols = [
-        fits.Column("BIN_LO", "D", unit="rad", array=folded.bin_edges[:-1]),
-        fits.Column("BIN_HI", "D", unit="rad", array=folded.bin_edges[1:]),
+        fits.Column("BIN_LO", "D", unit="deg", array=folded.bin_edges[:-1].to_value(u.deg)),
+        fits.Column("BIN_HI", "D", unit="deg", array=folded.bin_edges[1:].to_value(u.deg)),
         fits.Column(
             "EXPOSURE", f"{ex.shape[0]}D" if ex.ndim == 2 else "D", unit="s",
             array=ex.T if ex.ndim == 2 else ex,
@@ -396,8 +436,8 @@ def read_folded(path: str | os.PathLike) -> FoldedProfiles:
         tab = _ext(hdul, "PROFILES", path)
         h = tab.header
         inst = _read_instrument(hdul, h, path, "PROFILES")
-        lo = _col(tab.data, "BIN_LO", path, "PROFILES").astype(float)
-        hi = _col(tab.data, "BIN_HI", path, "PROFILES").astype(float)
+        lo = _col_in(tab.data, "BIN_LO", path, "PROFILES", u.deg)
+        hi = _col_in(tab.data, "BIN_HI", path, "PROFILES", u.deg)
         counts = np.atleast_2d(_col(tab.data, "COUNTS", path, "PROFILES").T).astype(np.int64)
         if counts.shape[1] != lo.size:
             counts = counts.reshape(-1, lo.size)
@@ -405,8 +445,8 @@ def read_folded(path: str | os.PathLike) -> FoldedProfiles:
         ex = ex.T if ex.ndim == 2 else ex
         try:
             return FoldedProfiles(
-                counts, ex, np.append(lo, hi[-1]), inst, _read_gti(hdul, path),
-                float(h.get("ROT_PHA0", 0.0)), _meta_from(h),
+                counts, ex, np.append(lo, hi[-1]) * u.deg, inst, _read_gti(hdul, path),
+                _key_in(h, "ROT_PHA0", 0.0, u.deg, path) * u.deg, _meta_from(h),
             )
         except RotmodError as exc:
             raise RotmodError(f"file {str(path)!r}: invalid folded profiles: {exc}") from exc

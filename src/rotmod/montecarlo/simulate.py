@@ -11,13 +11,13 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_array, as_scalar
+from rotmod._validate import as_angle, as_angle_scalar, as_array, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, check_gti
 from rotmod.geometry import Instrument
 from rotmod.montecarlo import _transport as tr
 from rotmod.montecarlo._rng import chunk_states, seed_sequence
-from rotmod.montecarlo.sources import THETA_MAX, PointSources
+from rotmod.montecarlo.sources import PointSources
 
 __all__ = ["MCProfiles", "chord_lengths", "simulate_observation", "simulate_profiles"]
 
@@ -90,11 +90,11 @@ class MCProfiles:
     n_photons : int
         Photons simulated per (detector, angle, source) cell, sampled uniformly on the
         detector face (the unobstructed flux).
-    theta, phi : ndarray, shape (n_src,)
+    theta, phi : Quantity, shape (n_src,)
         Source directions (rad).
-    xi : ndarray, shape (n_angle,)
+    xi : Quantity, shape (n_angle,)
         Mask angles (rad): the points simulated, or the bin centres.
-    xi_edges : ndarray, shape (n_angle + 1,) or None
+    xi_edges : Quantity, shape (n_angle + 1,) or None
         Mask-angle bin edges (rad) when angles were sampled uniformly within bins.
     energy : float or None
         Photon energy (keV) used for the attenuation.
@@ -103,10 +103,10 @@ class MCProfiles:
 
     counts: np.ndarray
     n_photons: int
-    theta: np.ndarray
-    phi: np.ndarray
-    xi: np.ndarray
-    xi_edges: np.ndarray | None
+    theta: u.Quantity
+    phi: u.Quantity
+    xi: u.Quantity
+    xi_edges: u.Quantity | None
     energy: float | None
     instrument: Instrument
 
@@ -163,11 +163,13 @@ def simulate_profiles(
     ----------
     instrument : Instrument
     theta, phi : array_like or Quantity, shape (n_src,)
-        Source zenith (0 <= theta < 90 deg) and azimuth; rad if plain numbers.
+        Source zenith (0 <= theta < 90 deg) and azimuth; deg if plain numbers.
     xi : array_like or Quantity, shape (n_angle,), optional
-        Mask angles (rad) at which to simulate.  Give exactly one of ``xi``, ``xi_edges``.
+        Mask angles at which to simulate (deg if plain numbers).  Give exactly one of
+        ``xi``, ``xi_edges``.
     xi_edges : array_like or Quantity, shape (n_angle + 1,), optional
-        Increasing mask-angle bin edges (rad); each photon's angle is uniform in its bin.
+        Increasing mask-angle bin edges (deg if plain numbers); each photon's angle is
+        uniform in its bin.
     energy : float or Quantity, optional
         Photon energy (keV); needed unless the mask's attenuation is fixed.
     n_photons : int
@@ -189,8 +191,8 @@ def simulate_profiles(
         Bad geometry, directions, angles or counts.
     """
     inst = _check_instrument(instrument)
-    th = as_array(theta, "theta", u.rad, lo=0.0, hi=THETA_MAX, hi_open=True, ndim=1)
-    ph = as_array(phi, "phi", u.rad, ndim=1)
+    th = as_angle(theta, "theta", lo=0.0, hi=90.0, hi_open=True, ndim=1)
+    ph = as_angle(phi, "phi", ndim=1)
     if th.shape != ph.shape:
         if ph.size == 1:
             ph = np.full(th.shape, ph[0])
@@ -205,12 +207,12 @@ def simulate_profiles(
     if (xi is None) == (xi_edges is None):
         raise ParameterError("give exactly one of xi (angles) and xi_edges (angle bins)")
     if xi is not None:
-        xs = as_array(xi, "xi", u.rad, ndim=1)
+        xs = as_angle(xi, "xi", ndim=1)
         if xs.size == 0:
             raise ParameterError("xi must contain at least one mask angle, got none")
         xi_lo, xi_w, binned, edges = xs, np.zeros_like(xs), False, None
     else:
-        edges = as_array(xi_edges, "xi_edges", u.rad, ndim=1)
+        edges = as_angle(xi_edges, "xi_edges", ndim=1)
         if edges.size < 2 or np.any(np.diff(edges) <= 0):
             raise ParameterError(
                 "xi_edges must hold at least 2 strictly increasing mask angles, "
@@ -253,7 +255,8 @@ def simulate_profiles(
         close()
     log.debug("simulate_profiles: %d photons in %d chunks", total, lo.size)
     return MCProfiles(
-        counts.sum(axis=0).reshape(n_det, n_t, n_n), n_photons, th, ph, xs, edges, e, inst
+        counts.sum(axis=0).reshape(n_det, n_t, n_n), n_photons, th * u.rad, ph * u.rad,
+        xs * u.rad, None if edges is None else edges * u.rad, e, inst,
     )
 
 
@@ -271,7 +274,7 @@ def chord_lengths(
     x, y : array_like or Quantity
         Lab coordinates of the rays' end points in the detector plane (cm).
     theta, phi, xi : array_like or Quantity
-        Source zenith (< 90 deg), azimuth and mask angle (rad if plain numbers).
+        Source zenith (< 90 deg), azimuth and mask angle (deg if plain numbers).
 
     Returns
     -------
@@ -281,9 +284,9 @@ def chord_lengths(
     inst = _check_instrument(instrument)
     xx = as_array(x, "x", u.cm)
     yy = as_array(y, "y", u.cm)
-    th = as_array(theta, "theta", u.rad, lo=0.0, hi=THETA_MAX, hi_open=True)
-    ph = as_array(phi, "phi", u.rad)
-    xv = as_array(xi, "xi", u.rad)
+    th = as_angle(theta, "theta", lo=0.0, hi=90.0, hi_open=True)
+    ph = as_angle(phi, "phi")
+    xv = as_angle(xi, "xi")
     xx, yy, th, ph, xv = np.broadcast_arrays(xx, yy, th, ph, xv)
     shape = xx.shape
     a, b, L, h, _ = _mask_params(inst)
@@ -327,7 +330,7 @@ def simulate_observation(
     gti : array_like, shape (k, 2), optional
         Good-time intervals inside ``[t_start, t_stop]``; default the whole exposure.
     start_phase : float or Quantity
-        Mask angle at ``t = 0`` (rad).
+        Mask angle at ``t = 0`` (deg if a plain number).
     background : float or array_like, shape (n_det,)
         Flat background rate per detector (1/s), >= 0.
     background_energy : float or Quantity, optional
@@ -358,7 +361,7 @@ def simulate_observation(
     g = check_gti(gti, t0, t1)
     if t1 is None:
         t1 = float(g[-1, 1])
-    phase = as_scalar(start_phase, "start_phase", u.rad)
+    phase = as_angle_scalar(start_phase, "start_phase")
     n_det = len(inst.detectors)
     bkg = as_array(background, "background", 1 / u.s, lo=0.0, ndim=1)
     if bkg.size == 1:
@@ -395,10 +398,11 @@ def simulate_observation(
     pc = np.concatenate(pieces)
     root = seed_sequence(seed)
     det = inst.detectors
+    src_th, src_ph = sources.theta.to_value(u.rad), sources.phi.to_value(u.rad)
     geom = (
         np.ascontiguousarray(det.positions[:, 0]), np.ascontiguousarray(det.positions[:, 1]),
-        det.radius, np.sin(sources.theta), np.cos(sources.theta), np.cos(sources.phi),
-        np.sin(sources.phi), mu, np.array(sources.rate), bkg,
+        det.radius, np.sin(src_th), np.cos(src_th), np.cos(src_ph), np.sin(src_ph), mu,
+        np.array(sources.rate), bkg,
         inst.angular_speed, phase, a, b, L, h, thin_opaque,
     )
     per_batch = max(1, _OBS_BATCH_PHOTONS // max(chunk_size, 1))
@@ -440,6 +444,6 @@ def simulate_observation(
     energy = np.where(src >= 0, sources.energy[np.maximum(src, 0)], e_bkg).astype(np.float32)
     log.debug("simulate_observation: %d events in %d time pieces", time.size, pc.shape[0])
     return EventList(
-        time[order], np.concatenate(out_d)[order], energy, inst, g, phase, t0, t1,
+        time[order], np.concatenate(out_d)[order], energy, inst, g, phase * u.rad, t0, t1,
         src, sources, dict(meta or {}),
     )

@@ -8,13 +8,10 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_array
+from rotmod._validate import as_angle, as_array
 from rotmod.errors import ParameterError
 
 __all__ = ["PointSources"]
-
-#: Largest zenith angle accepted (rad): tan(theta) must stay finite.
-THETA_MAX = np.pi / 2
 
 
 def _broadcast(name: str, arr: np.ndarray, n: int) -> np.ndarray:
@@ -32,8 +29,8 @@ class PointSources:
     Parameters
     ----------
     theta, phi : array_like or Quantity, shape (n,)
-        Zenith (0 <= theta < 90 deg) and azimuth of each source (rad if plain numbers),
-        following :mod:`rotmod.conventions`.
+        Zenith (0 <= theta < 90 deg) and azimuth of each source (deg if plain numbers),
+        following :mod:`rotmod.conventions`.  Held as Quantities (rad).
     rate : array_like or Quantity, shape (n,) or scalar
         Photons per second incident on *each* detector face with no mask (1/s), >= 0.
     energy : array_like or Quantity, shape (n,) or scalar
@@ -42,7 +39,7 @@ class PointSources:
 
     Examples
     --------
-    >>> src = PointSources(np.radians([6.0]), [0.0], rate=100.0, energy=662.0)
+    >>> src = PointSources([6.0], [0.0], rate=100.0, energy=662.0)  # degrees
     >>> len(src)
     1
     """
@@ -53,8 +50,8 @@ class PointSources:
     energy: Any = 662.0
 
     def __post_init__(self) -> None:
-        th = as_array(self.theta, "theta", u.rad, lo=0.0, hi=THETA_MAX, hi_open=True, ndim=1)
-        ph = as_array(self.phi, "phi", u.rad, ndim=1)
+        th = as_angle(self.theta, "theta", lo=0.0, hi=90.0, hi_open=True, ndim=1)
+        ph = as_angle(self.phi, "phi", ndim=1)
         n = max(th.size, ph.size)
         if n == 0:
             raise ParameterError("sources must contain at least one source, got 0")
@@ -67,7 +64,8 @@ class PointSources:
         for name, arr in (("theta", th), ("phi", ph), ("rate", rate), ("energy", energy)):
             arr = np.array(arr, dtype=float)
             arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
+            # Angles leave as Quantities so that passing them on can't be misread as degrees.
+            object.__setattr__(self, name, arr * u.rad if name in ("theta", "phi") else arr)
 
     def __len__(self) -> int:
         return self.theta.size
@@ -82,7 +80,7 @@ class PointSources:
         ----------
         theta, phi : array_like or Quantity
             Direction of each pixel centre (any shape; e.g. from a sky grid's
-            ``directions()``), rad if plain numbers.
+            ``directions()``), deg if plain numbers.
         image : array_like or Quantity
             Rate of each pixel (photons/s on each detector face with no mask), same size.
         energy : float or Quantity
@@ -90,8 +88,8 @@ class PointSources:
         keep_zero : bool
             Keep pixels of zero rate (default: drop them, they emit nothing).
         """
-        th = np.ravel(as_array(theta, "theta", u.rad))
-        ph = np.ravel(as_array(phi, "phi", u.rad))
+        th = np.ravel(as_angle(theta, "theta")) * u.rad
+        ph = np.ravel(as_angle(phi, "phi")) * u.rad
         img = np.ravel(as_array(image, "image", 1 / u.s, lo=0.0))
         if not (th.size == ph.size == img.size):
             raise ParameterError(
@@ -104,10 +102,10 @@ class PointSources:
         return cls(th[keep], ph[keep], img[keep], energy)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain lists (rad, 1/s, keV) for metadata."""
+        """Plain lists (deg, 1/s, keV) for metadata; :meth:`from_dict` reads them back."""
         return {
-            "theta": self.theta.tolist(),
-            "phi": self.phi.tolist(),
+            "theta": self.theta.to_value(u.deg).tolist(),
+            "phi": self.phi.to_value(u.deg).tolist(),
             "rate": self.rate.tolist(),
             "energy": self.energy.tolist(),
         }

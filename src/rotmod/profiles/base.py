@@ -25,10 +25,9 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_array
+from rotmod._validate import as_angle, as_float_dtype
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument
 
@@ -40,9 +39,6 @@ __all__ = [
     "project",
     "register_model",
 ]
-
-#: Largest zenith angle accepted (rad).  ``tan(theta)`` must stay finite.
-_THETA_MAX = np.pi / 2
 
 
 @dataclass(frozen=True)
@@ -80,9 +76,12 @@ class ProjectedGeometry:
 
 
 def check_sources(theta: Any, phi: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Validate source directions; returns 1-D float arrays (rad) of equal length."""
-    th = as_array(theta, "theta", u.rad, lo=0.0, hi=_THETA_MAX, hi_open=True, ndim=1)
-    ph = as_array(phi, "phi", u.rad, ndim=1)
+    """Validate source directions (Quantities, or plain numbers in deg).
+
+    Returns 1-D float arrays (rad) of equal length.
+    """
+    th = as_angle(theta, "theta", lo=0.0, hi=90.0, hi_open=True, ndim=1)
+    ph = as_angle(phi, "phi", ndim=1)
     if th.shape != ph.shape:
         if ph.size == 1:
             ph = np.full(th.shape, ph[0])
@@ -96,8 +95,8 @@ def check_sources(theta: Any, phi: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_angles(xi: Any) -> np.ndarray:
-    """Validate mask angles; returns a 1-D float array (rad)."""
-    return as_array(xi, "xi", u.rad, ndim=1)
+    """Validate mask angles (Quantities, or plain numbers in deg); returns 1-D rad."""
+    return as_angle(xi, "xi", ndim=1)
 
 
 def project(instrument: Instrument, theta: Any, phi: Any, energy: Any = None) -> ProjectedGeometry:
@@ -107,7 +106,7 @@ def project(instrument: Instrument, theta: Any, phi: Any, energy: Any = None) ->
     ----------
     instrument : Instrument
     theta, phi : array_like or Quantity
-        Source zenith (0 <= theta < 90 deg) and azimuth, rad if plain numbers.
+        Source zenith (0 <= theta < 90 deg) and azimuth; deg if plain numbers.
     energy : float or Quantity, optional
         Photon energy (keV); needed unless the mask has an explicit ``mu``.
     """
@@ -160,9 +159,9 @@ class ProfileModel(ABC):
         ----------
         instrument : Instrument
         theta, phi : array_like or Quantity, shape (n_src,)
-            Source zenith (< 90 deg) and azimuth; rad if plain numbers.
+            Source zenith (< 90 deg) and azimuth; deg if plain numbers.
         xi : array_like or Quantity, shape (n_angle,)
-            Mask angles; rad if plain numbers.
+            Mask angles; deg if plain numbers.
         energy : float or Quantity, optional
             Photon energy (keV); needed unless the mask has an explicit ``mu``.
         dtype : numpy dtype
@@ -180,9 +179,7 @@ class ProfileModel(ABC):
         geom = project(instrument, theta, phi, energy)
         xi = check_angles(xi)
         self.check_validity(instrument, geom)
-        dt = np.dtype(dtype)
-        if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
-            raise ParameterError(f"dtype must be float32 or float64, got {dt}")
+        dt = as_float_dtype(dtype)
         out = np.empty((len(instrument.detectors), xi.size, geom.theta.size), dtype=dt)
         self._evaluate(instrument, geom, np.cos(xi), np.sin(xi), out)
         return out

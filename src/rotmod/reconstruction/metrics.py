@@ -13,8 +13,10 @@ import tracemalloc
 from collections.abc import Callable
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 
+from rotmod._validate import as_angle
 from rotmod.errors import ParameterError
 
 __all__ = [
@@ -39,16 +41,16 @@ def _check_image(image: Any, grid: Any) -> np.ndarray:
 
 
 def _tangent(grid: Any, sources: Any) -> tuple[np.ndarray, np.ndarray]:
-    th, ph = (np.atleast_1d(np.asarray(v, dtype=float)) for v in sources)
+    th, ph = (np.atleast_1d(as_angle(v, n)) for v, n in zip(sources, ("theta", "phi"), strict=True))
     if th.shape != ph.shape:
         raise ParameterError(f"sources theta and phi must match, got {th.shape} and {ph.shape}")
-    return grid.to_tangent(th, ph)
+    return grid.to_tangent(th * u.rad, ph * u.rad)
 
 
 def angular_distance(grid: Any, x1: Any, y1: Any, x2: Any, y2: Any) -> np.ndarray:
     """Great-circle angle (deg) between tangent-plane points ``(x1, y1)`` and ``(x2, y2)``."""
-    t1, p1 = grid.from_tangent(x1, y1)
-    t2, p2 = grid.from_tangent(x2, y2)
+    t1, p1 = (v.to_value(u.rad) for v in grid.from_tangent(x1, y1))
+    t2, p2 = (v.to_value(u.rad) for v in grid.from_tangent(x2, y2))
     from rotmod.conventions import source_direction
 
     chord = np.linalg.norm(source_direction(t1, p1) - source_direction(t2, p2), axis=-1)
@@ -236,7 +238,7 @@ def evaluate(
     result : ReconstructionResult
     grid : SkyGrid
     sources : (theta, phi)
-        True source directions (rad).
+        True source directions (Quantities, or plain numbers in deg).
     true_flux : array_like
         True source fluxes (sky units).
     radius : float
@@ -252,7 +254,8 @@ def evaluate(
         ``n_iter``, ``run_time``.
     """
     img = result.image
-    th, ph = (np.atleast_1d(np.asarray(v, dtype=float)) for v in sources)
+    names = ("theta", "phi")
+    th, ph = (np.atleast_1d(as_angle(v, n)) * u.rad for v, n in zip(sources, names, strict=True))
     loc = localization_errors(img, grid, (th, ph), radius=radius)
     out: dict[str, float] = {
         "loc_err_max": float(np.max(loc)) if np.all(np.isfinite(loc)) else float("nan"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 
 from rotmod.errors import ParameterError
@@ -139,7 +140,7 @@ def make_scenario(name: str, size: str = "small", seed: int = 0) -> Scenario:
         inst = Instrument(Mask(4.0, 4.0, h, 100.0, mat), DetectorArray.hexagonal(4.0, rings=1))
         tmp = SkyGrid((1, 1), 1.0)
         if name == "c":
-            th, ph = np.radians([theta_deg]), np.radians([30.0])
+            th, ph = [theta_deg] * u.deg, [30.0] * u.deg
         else:
             # (2.5, 1.5) deg on the tangent plane: theta = 2.92 deg, phi = 31 deg, on a pixel
             # centre of the grids below (a point source between pixels cannot be fitted).
@@ -202,6 +203,6 @@ def make_scenario(name: str, size: str = "small", seed: int = 0) -> Scenario:
     )
     folded = fold(ev, n_bins)
     return Scenario(
-        name, desc, inst, grid, tb, energy, np.asarray(th), np.asarray(ph), flux, bkg,
+        name, desc, inst, grid, tb, energy, u.Quantity(th, u.rad), u.Quantity(ph, u.rad), flux, bkg,
         duration, folded, resolution, radius, kw, stopping,
     )

@@ -18,7 +18,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_scalar
+from rotmod._validate import as_angle, as_scalar
 from rotmod.errors import ParameterError
 
 __all__ = ["SkyGrid"]
@@ -85,20 +85,20 @@ class SkyGrid:
         y = self.center[1] + (np.arange(ny) - (ny - 1) / 2) * self.pixel_size
         return np.meshgrid(x, y)
 
-    def directions(self) -> tuple[np.ndarray, np.ndarray]:
-        """Zenith and azimuth (rad) of every pixel centre, flattened (n_sky,) in C order."""
-        x, y = (np.radians(v).ravel() for v in self.pixel_centers())
-        return np.arctan(np.hypot(x, y)), np.arctan2(y, x)
+    def directions(self) -> tuple[u.Quantity, u.Quantity]:
+        """Zenith and azimuth (Quantities, rad) of every pixel centre, flattened (n_sky,)."""
+        return self.from_tangent(*(v.ravel() for v in self.pixel_centers()))
 
     def to_tangent(self, theta: Any, phi: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Tangent-plane coordinates (deg) of directions ``(theta, phi)`` (rad)."""
-        t = np.tan(np.asarray(theta, dtype=float))
-        return np.degrees(t * np.cos(phi)), np.degrees(t * np.sin(phi))
+        """Tangent-plane coordinates (deg) of directions ``(theta, phi)`` (deg if plain)."""
+        th, ph = as_angle(theta, "theta"), as_angle(phi, "phi")
+        t = np.tan(th)
+        return np.degrees(t * np.cos(ph)), np.degrees(t * np.sin(ph))
 
-    def from_tangent(self, x: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Directions ``(theta, phi)`` (rad) of tangent-plane coordinates (deg)."""
-        xr, yr = np.radians(np.asarray(x, dtype=float)), np.radians(np.asarray(y, dtype=float))
-        return np.arctan(np.hypot(xr, yr)), np.arctan2(yr, xr)
+    def from_tangent(self, x: Any, y: Any) -> tuple[u.Quantity, u.Quantity]:
+        """Directions ``(theta, phi)`` (Quantities, rad) of tangent-plane coordinates (deg)."""
+        xr, yr = as_angle(x, "x"), as_angle(y, "y")
+        return np.arctan(np.hypot(xr, yr)) * u.rad, np.arctan2(yr, xr) * u.rad
 
     def wcs(self) -> Any:
         """An `astropy.wcs.WCS` (TAN) for images on this grid (see module notes)."""

@@ -52,6 +52,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
+from rotmod._deps import optional_import
 from rotmod.errors import ParameterError, RotmodError
 
 __all__ = [
@@ -560,8 +561,7 @@ class InstrumentConfig:
             ) from exc
         try:
             if p.suffix.lower() in (".yaml", ".yml"):
-                import yaml
-
+                yaml = optional_import("yaml", "yaml", "YAML instrument files")
                 data = yaml.safe_load(text) or {}
             else:
                 data = tomllib.loads(text)

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from rotmod._deps import optional_import
 from rotmod.errors import ParameterError
 
 __all__ = ["block_grid", "compute_blocks", "get_client", "map_blocks"]
@@ -93,7 +94,7 @@ def get_client(scheduler: str | None = None, client: Any = None) -> Iterator[Any
     if scheduler is not None and client is not None:
         raise ParameterError("pass either scheduler or client, not both")
     if client is not None:
-        from distributed import Client
+        Client = optional_import("distributed", "distributed", "Dask clusters").Client
 
         if not isinstance(client, Client):
             raise ParameterError(
@@ -106,9 +107,7 @@ def get_client(scheduler: str | None = None, client: Any = None) -> Iterator[Any
         return
     if not isinstance(scheduler, str):
         raise ParameterError(f"scheduler must be an address string, got {scheduler!r}")
-    from distributed import Client
-
-    c = Client(scheduler)
+    c = optional_import("distributed", "distributed", "Dask clusters").Client(scheduler)
     try:
         yield c
     finally:

@@ -27,9 +27,52 @@ def add_instrument(p: argparse.ArgumentParser, *, default: str | None = "paper")
     )
 
 
+def to_number(text: str, unit: str) -> float:
+    """A command-line number: plain (in ``unit``) or with a unit, e.g. ``3deg``, ``5min``.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Not a number, a unit of the wrong kind, or not finite.
+    """
+    import astropy.units as u
+
+    s = text.strip()
+    try:
+        value = float(s)
+    except ValueError:
+        try:
+            q = u.Quantity(s)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(
+                f"must be a number (in {unit}) or a number with a unit like '3 {unit}', "
+                f"got {text!r}"
+            ) from None
+        try:
+            value = float(q.to_value(u.Unit(unit)))
+        except u.UnitConversionError:
+            raise argparse.ArgumentTypeError(
+                f"must be in units of {unit}, got {text!r} ({q.unit})"
+            ) from None
+    if not np.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return value
+
+
+def quantity(unit: str) -> Callable[[str], float]:
+    """argparse ``type=`` for a number in ``unit`` that may also be written with a unit."""
+
+    def conv(text: str) -> float:
+        return to_number(text, unit)
+
+    conv.__name__ = f"number in {unit}"
+    return conv
+
+
 def add_energy(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-e", "--energy", type=float, default=None, metavar="KEV",
-                   help="photon energy (keV); default the instrument file's first energy")
+    p.add_argument("-e", "--energy", type=quantity("keV"), default=None, metavar="KEV",
+                   help="photon energy (keV, or with a unit: 1.2MeV); "
+                   "default the instrument file's first energy")
 
 
 def add_progress(p: argparse.ArgumentParser) -> None:
@@ -74,11 +117,10 @@ def parse_source(text: str, *, with_rate: bool = False) -> tuple[float, ...]:
             f"must be {want} (degrees{', photons/s' if with_rate else ''}), got {text!r}"
         )
     try:
-        vals = tuple(float(x) for x in parts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be numbers {want}, got {text!r}") from None
-    if not all(np.isfinite(vals)):
-        raise argparse.ArgumentTypeError(f"must be finite numbers {want}, got {text!r}")
+        units = ("deg", "deg", "1/s")[: len(parts)]
+        vals = tuple(to_number(x, un) for x, un in zip(parts, units, strict=True))
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{want}: {exc}, in {text!r}") from None
     if not 0 <= vals[0] < 90:
         raise argparse.ArgumentTypeError(f"zenith must be in [0, 90) deg, got {vals[0]:g}")
     if with_rate and len(vals) == 3 and vals[2] < 0:

@@ -16,6 +16,7 @@ from rotmod.cli._common import (
     load_config,
     parse_range,
     progress_wanted,
+    quantity,
     save_figure,
     say,
     tqdm_progress,
@@ -57,13 +58,13 @@ def register(sub: Any) -> None:
                    help="slat gaps to scan (cm; default 0.5c:2c:7)")
     p.add_argument("--h", type=parse_range, default=None, metavar="RANGE",
                    help="slat thicknesses (cm; default the instrument's)")
-    p.add_argument("--c", type=float, default=None, metavar="CM",
+    p.add_argument("--c", type=quantity("cm"), default=None, metavar="CM",
                    help="detector diameter (cm; default the instrument's)")
-    p.add_argument("--L", type=float, default=None, metavar="CM",
+    p.add_argument("--L", type=quantity("cm"), default=None, metavar="CM",
                    help="mask height (cm; default the instrument's)")
     p.add_argument("--energies", type=parse_range, default=None, metavar="RANGE",
                    help="energies (keV) averaged over (default the instrument's)")
-    p.add_argument("--fov", type=float, default=20.0, metavar="DEG",
+    p.add_argument("--fov", type=quantity("deg"), default=20.0, metavar="DEG",
                    help="full field of view (deg; default 20)")
     p.add_argument("--weights", type=_weights, default=(1.0, 1.0, 1.0), metavar="S,T,R",
                    help="weights of sensitivity, transmission, resolving power for the best "

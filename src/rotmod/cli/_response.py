@@ -15,6 +15,7 @@ from rotmod.cli._common import (
     energy_of,
     load_config,
     progress_wanted,
+    quantity,
     say,
 )
 
@@ -35,9 +36,9 @@ def register(sub: Any) -> None:
     p.add_argument("-m", "--model", default="exact", metavar="NAME",
                    help="profile model (standard, advanced, advanced-approx, advanced-g0, "
                    "exact; default exact)")
-    p.add_argument("--fov", type=float, default=14.0, metavar="DEG",
+    p.add_argument("--fov", type=quantity("deg"), default=14.0, metavar="DEG",
                    help="side of the square field (deg; default 14, the paper's)")
-    p.add_argument("--pixel", type=float, default=0.2, metavar="DEG",
+    p.add_argument("--pixel", type=quantity("deg"), default=0.2, metavar="DEG",
                    help="pixel size (deg; default 0.2 = 12 arcmin, the paper's)")
     p.add_argument("--center", type=str, default="0,0", metavar="X,Y",
                    help="tangent-plane centre of the field (deg; default 0,0)")

@@ -17,6 +17,7 @@ from rotmod.cli._common import (
     energy_of,
     load_config,
     progress_wanted,
+    quantity,
     say,
     source_arg,
 )
@@ -37,9 +38,9 @@ def register(sub: Any) -> None:
                    required=True, metavar="THETA,PHI[,RATE]",
                    help="source zenith, azimuth (deg) and rate (photons/s on each detector "
                    "with no mask; default 10); repeatable")
-    p.add_argument("-t", "--exposure", type=float, required=True, metavar="SECONDS",
+    p.add_argument("-t", "--exposure", type=quantity("s"), required=True, metavar="SECONDS",
                    help="observation length (s)")
-    p.add_argument("--background", type=float, default=0.0, metavar="RATE",
+    p.add_argument("--background", type=quantity("1/s"), default=0.0, metavar="RATE",
                    help="flat background rate per detector (1/s; default 0)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: fresh)")
     add_progress(p)

@@ -122,6 +122,13 @@ class EventList:
     def __len__(self) -> int:
         return self.time.size
 
+    def __repr__(self) -> str:
+        span = f"{self.t_start:g}..{self.t_stop:g} s"
+        return (
+            f"<EventList {len(self)} events, {len(self.instrument.detectors)} detectors, {span}, "
+            f"{self.exposure:g} s good time>"
+        )
+
     @property
     def exposure(self) -> float:
         """Total good time (s): the sum of the GTI lengths (no dead time is modelled)."""

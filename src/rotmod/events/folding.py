@@ -145,6 +145,13 @@ class FoldedProfiles:
         object.__setattr__(self, "start_phase", phase)
         object.__setattr__(self, "meta", dict(self.meta))
 
+    def __repr__(self) -> str:
+        good = float(np.sum(self.gti[:, 1] - self.gti[:, 0]))
+        return (
+            f"<FoldedProfiles {self.counts.shape[0]} detectors x {self.n_bins} bins, "
+            f"{int(self.counts.sum())} counts, {good:g} s good time>"
+        )
+
     @property
     def n_bins(self) -> int:
         """Number of mask-angle bins."""

@@ -110,6 +110,13 @@ class MCProfiles:
     energy: float | None
     instrument: Instrument
 
+    def __repr__(self) -> str:
+        d, t, n = self.counts.shape
+        return (
+            f"<MCProfiles {d} detectors x {t} angles x {n} sources, "
+            f"{self.n_photons} photons per cell>"
+        )
+
     @property
     def fraction(self) -> np.ndarray:
         """Transmitted fraction ``P[d, t, n] = counts / n_photons``."""

@@ -70,6 +70,9 @@ class PointSources:
     def __len__(self) -> int:
         return self.theta.size
 
+    def __repr__(self) -> str:
+        return f"<PointSources {len(self)} sources, {float(self.rate.sum()):g} photons/s in all>"
+
     @classmethod
     def from_image(
         cls, theta: Any, phi: Any, image: Any, *, energy: Any = 662.0, keep_zero: bool = False

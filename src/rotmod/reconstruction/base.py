@@ -158,6 +158,13 @@ class ReconstructionResult:
     grid: Any = None
     extras: dict[str, Any] = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        ny, nx = self.image.shape
+        return (
+            f"<ReconstructionResult {self.method} {ny}x{nx}, {self.n_iter} iterations "
+            f"({self.stop_reason}), chi2/dof {self.chi2_dof:.3g}, {self.run_time:.3g} s>"
+        )
+
     @property
     def chi2_dof(self) -> float:
         """Final Pearson chi-square per degree of freedom."""

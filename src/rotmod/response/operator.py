@@ -45,6 +45,16 @@ class ResponseOperator(ABC):
     model: Any = None
     energy: float | None = None
 
+    def __repr__(self) -> str:
+        model = self.model.name if hasattr(self.model, "name") else self.model
+        extra = "" if model is None else f", model {model!r}"
+        if self.energy is not None:
+            extra += f", {self.energy:g} keV"
+        return (
+            f"<{type(self).__name__} {self.n_det} detectors x {self.n_time} time bins x "
+            f"{self.n_sky} sky pixels, {np.dtype(self.dtype).name}{extra}>"
+        )
+
     @property
     def shape(self) -> tuple[int, int]:
         """``(n_det * n_time, n_sky)``, the shape of the flattened matrix."""

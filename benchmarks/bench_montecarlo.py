@@ -18,9 +18,11 @@ import numba
 import numpy as np
 
 from rotmod import Instrument
+from rotmod.materials import PAPER_SIGMA_662
 from rotmod.montecarlo import simulate_profiles
 
-INST = Instrument.paper(a=4.0, h=2.0)  # lead, a = b = c = 4 cm, h = 2 cm, L = 100 cm
+# The paper preset (lead, a = b = c = 4 cm, h = 2 cm, L = 100 cm) with its fixed sigma.
+INST = Instrument.paper(sigma=PAPER_SIGMA_662)
 THETA, PHI = [6.0], [32.0]  # deg (a plain public angle means degrees)
 XI = (np.arange(560) + 0.5) * 360.0 / 560  # deg
 

@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from rotmod import DetectorArray, Instrument
+from rotmod.materials import PAPER_SIGMA_662
 from rotmod.profiles import get_model
 from rotmod.profiles.advanced import alpha_factor
 from rotmod.profiles.base import project
@@ -71,10 +72,11 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     r = max(5, args.repeat)
-    inst1 = Instrument.paper()
+    inst1 = Instrument.paper(sigma=PAPER_SIGMA_662)
     # The lab prototype's array: 19 detectors of 3.8 cm under a = b = c = 3.8 cm slats (so
     # that the standard model applies too).
-    inst19 = Instrument(Instrument.paper(a=3.8).mask, DetectorArray.hexagonal(3.8, rings=2))
+    mask38 = Instrument.paper(a=3.8, sigma=PAPER_SIGMA_662).mask
+    inst19 = Instrument(mask38, DetectorArray.hexagonal(3.8, rings=2))
     grid = SkyGrid.paper()
     theta, phi = (v.to_value(u.rad) for v in grid.directions())  # plain rad for numpy
     tb = TimeBinning(560)

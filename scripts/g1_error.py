@@ -14,6 +14,7 @@ import numpy as np
 
 from rotmod.errors import ModelValidityError
 from rotmod.geometry import DetectorArray, Instrument
+from rotmod.materials import PAPER_SIGMA_662
 from rotmod.profiles import get_model
 
 # (label, a, b, c, h, theta_deg)
@@ -33,7 +34,7 @@ N_ANGLES = 720
 
 def scenario_errors(a: float, b: float, c: float, h: float, theta_deg: float) -> dict[str, float]:
     """Max/RMS of |P_approx - P_exact| and related sizes, over detectors, azimuths, angles."""
-    inst = Instrument.paper(a=a, b=b, c=c, h=h)
+    inst = Instrument.paper(a=a, b=b, c=c, h=h, sigma=PAPER_SIGMA_662)
     inst = Instrument(inst.mask, DetectorArray([[0.0, 0.0], [4.2, 0.0]], c))
     theta = np.full(len(PHI_DEG), theta_deg)  # deg
     phi = np.asarray(PHI_DEG)

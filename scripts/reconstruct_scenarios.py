@@ -14,7 +14,7 @@ import numpy as np
 
 from rotmod.reconstruction import reconstruct
 from rotmod.reconstruction.metrics import evaluate, measure
-from rotmod.reconstruction.scenarios import SCENARIOS, make_scenario
+from rotmod.paper.scenarios import SCENARIOS, make_scenario
 
 log = logging.getLogger("reconstruct_scenarios")
 

@@ -19,7 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from rotmod.validation import DEFAULT_MODELS, SCENARIOS, plot_scenario, run_scenario
+from rotmod.paper.validation import DEFAULT_MODELS, SCENARIOS, plot_scenario, run_scenario
 
 log = logging.getLogger("validate_profiles")
 

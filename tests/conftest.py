@@ -17,7 +17,7 @@ import pytest
 from scipy.integrate import IntegrationWarning, quad
 
 from rotmod.geometry import DetectorArray, Instrument, Mask
-from rotmod.materials import Material
+from rotmod.materials import PAPER_SIGMA_662, Material
 
 
 @pytest.fixture
@@ -28,9 +28,9 @@ def rng() -> np.random.Generator:
 
 @pytest.fixture
 def paper_instrument() -> Instrument:
-    """The paper's simulation set-up: lead (11.34 g/cm3, sigma = 0.103 cm2/g at 662 keV),
-    a = b = c = 4 cm, h = 2 cm, L = 100 cm, one detector on the axis."""
-    return Instrument.paper(a=4.0, h=2.0)
+    """The paper's simulation set-up with its fixed 662 keV attenuation (sigma = 0.103 cm2/g):
+    lead, a = b = c = 4 cm, h = 2 cm, L = 100 cm, one detector on the axis."""
+    return Instrument.paper(sigma=PAPER_SIGMA_662)
 
 
 @pytest.fixture

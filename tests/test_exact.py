@@ -10,6 +10,7 @@ from numba import njit
 
 from conftest import rad
 from rotmod.geometry import DetectorArray, Instrument, Mask
+from rotmod.materials import PAPER_SIGMA_662
 from rotmod.profiles import get_model, project
 from rotmod.profiles.exact import _clip_integral, exact_point
 
@@ -231,7 +232,7 @@ def test_source_slices_give_the_same_profile(monkeypatch, rng):
     # change a single value, ragged last slice included.
     import rotmod.profiles.exact as exact_mod
 
-    inst = Instrument.paper()
+    inst = Instrument.paper(sigma=PAPER_SIGMA_662)
     theta, phi = rng.uniform(0, 0.3, 1000), rng.uniform(0, 2 * np.pi, 1000)
     xi = np.linspace(0, 2 * np.pi, 9)
     whole = get_model("exact").profile(inst, rad(theta), rad(phi), rad(xi))

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from conftest import rad
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
-from rotmod.materials import Material
+from rotmod.materials import PAPER_SIGMA_662, Material
 from rotmod.profiles import MODELS, AdvancedModel, StandardModel, get_model, project
 from rotmod.profiles.advanced import advanced_point, alpha_factor
 from rotmod.profiles.exact import exact_point
@@ -205,7 +205,7 @@ def test_g1_approximation_error_bound(rng):
 
 def _paper_case():
     """Paper scenario of Fig. 4 (h = 20 cm, theta = 6 deg, a = b = c = 4 cm) off axis."""
-    inst = Instrument.paper(a=4.0, h=20.0, detector_xy=(-4.2, 3.0))
+    inst = Instrument.paper(a=4.0, h=20.0, detector_xy=(-4.2, 3.0), sigma=PAPER_SIGMA_662)
     return inst, np.radians([6.0]), np.array([2.5]), np.linspace(0, 2 * np.pi, 181)
 
 

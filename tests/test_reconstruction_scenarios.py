@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rotmod.paper.scenarios import make_scenario
 from rotmod.reconstruction import reconstruct
 from rotmod.reconstruction.metrics import evaluate
-from rotmod.reconstruction.scenarios import make_scenario
 
 pytestmark = pytest.mark.slow
 

@@ -8,7 +8,7 @@ import pytest
 
 from rotmod.cli import main
 from rotmod.errors import ParameterError
-from rotmod.report import reproduce
+from rotmod.paper.report import reproduce
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +20,7 @@ def tiny(tmp_path_factory):
 
 def test_tiny_reproduce_writes_report(tiny) -> None:
     index = (tiny / "index.html").read_text()
-    for section in ("id='profiles'", "id='speed'", "id='images'", "id='prototype'",
+    for section in ('id="profiles"', 'id="speed"', 'id="images"', 'id="prototype"',
                     "summary.png", "Paper:", "rotmod:"):
         assert section in index
     assert "0.8 s" in index and "1.3 days" in index  # the paper's figures beside ours
@@ -40,7 +40,7 @@ def test_rerun_skips_finished_steps(tiny) -> None:
 
 
 def test_interrupted_step_leaves_no_output(tmp_path, monkeypatch) -> None:
-    import rotmod.report as rep
+    import rotmod.paper.report as rep
 
     def interrupted(tmp, *a, **k):
         (tmp / "partial.png").write_text("x")
@@ -58,3 +58,40 @@ def test_bad_size_and_steps(tmp_path) -> None:
         reproduce(tmp_path, size="huge")
     with pytest.raises(ParameterError, match="steps must be among"):
         reproduce(tmp_path, size="tiny", steps=["nope"])
+
+
+def test_page_names_its_provenance_and_files_follow_the_umask(tiny) -> None:
+    # The fixture ran under the suite's umask; files must be readable like any other file
+    # the user creates (tempfile's 0600 would make them private).
+    from rotmod._atomic import current_umask
+
+    want_file = 0o666 & ~current_umask()
+    want_dir = 0o777 & ~current_umask()
+    for p in tiny.rglob("*"):
+        mode = p.stat().st_mode & 0o777
+        assert mode == (want_dir if p.is_dir() else want_file), (p, oct(mode))
+    index = (tiny / "index.html").read_text()
+    meta = json.loads((tiny / "reproduce.json").read_text())["provenance"]
+    assert meta["rotmod"] and meta["libraries"]["numpy"] and meta["seed"] == 1
+    assert (meta["git_commit"] or "unknown") in index
+    assert meta["libraries"]["numba"] in index
+    fits_files = list((tiny / "images").glob("*.fits"))
+    assert fits_files and all(f.name in index for f in fits_files)
+    from rotmod.io.images import read_image
+
+    img = read_image(fits_files[0])
+    assert img.image.ndim == 2 and img.header["BUNIT"]
+
+
+def test_umask_022_gives_world_readable_files(tmp_path) -> None:
+    import os
+    import stat
+
+    old = os.umask(0o022)
+    try:
+        reproduce(tmp_path, size="tiny", steps=["speed"])
+    finally:
+        os.umask(old)
+    for p in [tmp_path / "index.html", tmp_path / "reproduce.json",
+              tmp_path / "speed" / "result.json", tmp_path / "speed"]:
+        assert p.stat().st_mode & stat.S_IROTH, p

@@ -13,6 +13,7 @@ from scipy.sparse.linalg import lsqr
 from conftest import rad
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import ModelValidityError, ParameterError
+from rotmod.materials import PAPER_SIGMA_662
 from rotmod.profiles import get_model
 from rotmod.response import (
     MaterialisedResponse,
@@ -26,7 +27,7 @@ from rotmod.sky import SkyGrid
 @pytest.fixture(scope="module")
 def inst():
     """The paper's lead mask over a 7-detector hexagonal array (c = 3.8 cm < a = 4 cm)."""
-    base = Instrument.paper()
+    base = Instrument.paper(sigma=PAPER_SIGMA_662)
     return Instrument(base.mask, DetectorArray.hexagonal(3.8, rings=1))
 
 
@@ -37,7 +38,7 @@ def grid():
 
 @pytest.fixture(scope="module")
 def mat(inst, grid):
-    return build_response(inst, grid, 48, dtype=np.float64)
+    return build_response(inst, grid, 48, "advanced-approx", dtype=np.float64)
 
 
 # ------------------------------------------------------------------------- time binning
@@ -72,7 +73,7 @@ def test_time_binning_errors(args, match):
 
 def test_average_of_constant_in_bin_profile():
     """A point source on the axis has a constant profile: every bin average equals it."""
-    inst = Instrument.paper()
+    inst = Instrument.paper(sigma=PAPER_SIGMA_662)
     grid = SkyGrid((1, 1), 0.1)  # one pixel, on the axis
     c = build_response(inst, grid, 24, "advanced-approx", dtype=np.float64)
     a = build_response(inst, grid, TimeBinning(24, "average", 5), dtype=np.float64)
@@ -128,11 +129,11 @@ def test_metadata(inst, grid, mat):
 
 
 def test_float32_and_detector_subset(inst, grid, mat):
-    r32 = build_response(inst, grid, 48)
+    r32 = build_response(inst, grid, 48, "advanced-approx")
     assert r32.matrix.dtype == np.float32
     # float32 storage of values in [0, 1]: rounding <= 2^-24.
     np.testing.assert_allclose(r32.matrix, mat.matrix, atol=6e-8, rtol=0)
-    sub = build_response(inst, grid, 48, detectors=[3, 0], dtype=np.float64)
+    sub = build_response(inst, grid, 48, "advanced-approx", detectors=[3, 0], dtype=np.float64)
     assert len(sub.instrument.detectors) == 2
     np.testing.assert_array_equal(sub.matrix, mat.matrix[[3, 0]])
     x = np.ones(72)
@@ -156,7 +157,7 @@ def test_dot_test_materialised(mat, seed):
 
 
 def test_dot_test_float32(inst, grid):
-    r = build_response(inst, grid, 48)
+    r = build_response(inst, grid, 48, "advanced-approx")
     # float32 BLAS sums of up to 336 terms: relative error ~ 336 * 6e-8 worst case.
     _dot_test(r, np.random.default_rng(1), 3e-5)
 
@@ -192,9 +193,9 @@ def test_build_errors(inst, grid, kwargs, exc, match):
 
 def test_model_validity_refused():
     # Thick slats: h tan(theta) > a at the field edge; the advanced model refuses.
-    inst = Instrument.paper(h=60.0)
+    inst = Instrument.paper(h=60.0, sigma=PAPER_SIGMA_662)
     with pytest.raises(ModelValidityError, match="advanced model needs"):
-        build_response(inst, SkyGrid((4, 4), 2.0), 8)
+        build_response(inst, SkyGrid((4, 4), 2.0), 8, "advanced")
 
 
 def test_materialised_errors():
@@ -210,7 +211,7 @@ def test_materialised_errors():
 @pytest.fixture(scope="module")
 def mfree(inst, grid):
     # Small blocks so that several time and sky blocks (with ragged ends) are exercised.
-    return MatrixFreeResponse(inst, grid, 48, block_size=(10, 30))
+    return MatrixFreeResponse(inst, grid, 48, "advanced-approx", block_size=(10, 30))
 
 
 def test_matrix_free_equals_materialised(mat, mfree):

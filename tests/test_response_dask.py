@@ -8,6 +8,7 @@ import pytest
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import ParameterError
 from rotmod.io.response import write_response
+from rotmod.materials import PAPER_SIGMA_662
 from rotmod.parallel import get_client
 from rotmod.response import MatrixFreeResponse, build_response
 from rotmod.sky import SkyGrid
@@ -29,7 +30,8 @@ def cluster():
 
 def test_distributed_equals_local(cluster, tmp_path):
     lc, client = cluster
-    inst = Instrument(Instrument.paper().mask, DetectorArray.hexagonal(3.8, rings=1))
+    mask = Instrument.paper(sigma=PAPER_SIGMA_662).mask
+    inst = Instrument(mask, DetectorArray.hexagonal(3.8, rings=1))
     grid = SkyGrid((8, 8), 1.0)
     local = build_response(inst, grid, 30, block_size=(7, 25), progress=False)
     dist = build_response(inst, grid, 30, client=client, block_size=(7, 25))

@@ -14,13 +14,14 @@ from rotmod.io.response import (
     save_response,
     write_response,
 )
+from rotmod.materials import PAPER_SIGMA_662
 from rotmod.response import TimeBinning, build_response
 from rotmod.sky import SkyGrid
 
 
 @pytest.fixture(scope="module")
 def inst():
-    base = Instrument.paper()
+    base = Instrument.paper(sigma=PAPER_SIGMA_662)
     return Instrument(base.mask, DetectorArray.hexagonal(3.8, rings=1))
 
 
@@ -31,7 +32,7 @@ def grid():
 
 @pytest.fixture(scope="module")
 def ref(inst, grid):
-    return build_response(inst, grid, 20)
+    return build_response(inst, grid, 20, "advanced-approx")
 
 
 def test_save_load_round_trip(tmp_path, inst, grid, ref):
@@ -70,7 +71,8 @@ def test_overwrite(tmp_path, ref):
         (
             "instrument.mask.thickness",
             {"instrument": Instrument(
-                Instrument.paper(h=2.5).mask, DetectorArray.hexagonal(3.8, rings=1)
+                Instrument.paper(h=2.5, sigma=PAPER_SIGMA_662).mask,
+                DetectorArray.hexagonal(3.8, rings=1),
             )},
         ),
         ("grid.pixel_size", {"grid": SkyGrid((6, 7), 1.1)}),
@@ -134,7 +136,7 @@ def test_interrupted_write_resumes(tmp_path, inst, grid):
 
 
 def test_write_response_matches_build(tmp_path, inst, grid, ref):
-    out = write_response(tmp_path / "a.zarr", inst, grid, 20, progress=False)
+    out = write_response(tmp_path / "a.zarr", inst, grid, 20, "advanced-approx", progress=False)
     np.testing.assert_allclose(out.load().matrix, ref.matrix, rtol=0, atol=6e-8)  # as above
     with pytest.raises(ParameterError, match="already exists"):
         write_response(tmp_path / "a.zarr", inst, grid, 20)

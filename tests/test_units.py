@@ -20,12 +20,14 @@ from rotmod import DetectorArray, Instrument
 from rotmod.cli._common import parse_source, to_number
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, FoldedProfiles, exposure_per_bin
+from rotmod.materials import PAPER_SIGMA_662
 from rotmod.montecarlo import PointSources, chord_lengths, simulate_profiles
 from rotmod.profiles import get_model, project
 from rotmod.reconstruction.metrics import localization_errors
 from rotmod.sky import SkyGrid
 
-INST = Instrument(Instrument.paper().mask, DetectorArray([[0.0, 0.0], [4.2, -3.0]], 4.0))
+INST = Instrument(Instrument.paper(sigma=PAPER_SIGMA_662).mask,
+                  DetectorArray([[0.0, 0.0], [4.2, -3.0]], 4.0))
 GRID = SkyGrid((9, 9), 0.5)
 
 

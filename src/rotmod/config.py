@@ -42,7 +42,6 @@ from __future__ import annotations
 import difflib
 import math
 import os
-import tempfile
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -52,6 +51,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
+from rotmod._atomic import write_text
 from rotmod._deps import optional_import
 from rotmod.errors import ParameterError, RotmodError
 
@@ -604,7 +604,7 @@ class InstrumentConfig:
         p = Path(path)
         if p.exists() and not overwrite:
             raise ConfigError(f"output {str(p)!r}: exists; pass overwrite=True to replace it")
-        write_text_atomic(p, self.to_toml())
+        write_text(p, self.to_toml())
         return p
 
     # ---------------------------------------------------------------- use
@@ -751,16 +751,3 @@ def dumps_toml(d: dict[str, Any]) -> str:
             lines.append(f"{kk} = {_toml_value(vv)}")
     return "\n".join(lines) + "\n"
 
-
-def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file and a rename."""
-    p = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return p

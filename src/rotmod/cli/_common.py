@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from rotmod._atomic import atomic_path
 from rotmod.errors import RotmodError
 
 
@@ -101,6 +102,17 @@ def energy_of(args: argparse.Namespace, cfg: Any) -> float:
     return float(cfg.energies_kev[0])
 
 
+def iteration_bar(enabled: bool, desc: str) -> Any:
+    """A tqdm bar counting iterations of unknown total (a null context when disabled)."""
+    import contextlib
+
+    if not enabled:
+        return contextlib.nullcontext(None)
+    from tqdm.auto import tqdm
+
+    return tqdm(desc=desc, unit="it")
+
+
 def progress_wanted(args: argparse.Namespace) -> bool:
     flag = getattr(args, "progress", None)
     if flag is None:
@@ -173,35 +185,19 @@ def check_input(path: str | os.PathLike, what: str = "input") -> Path:
 
 def write_table(table: Any, path: Path) -> Path:
     """Write an astropy table as ECSV (``.ecsv``) or CSV (anything else), atomically."""
-    import tempfile
-
     fmt = "ascii.ecsv" if path.suffix.lower() == ".ecsv" else "ascii.csv"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         table.write(tmp, format=fmt, overwrite=True)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 
 def save_figure(fig: Any, path: Path, dpi: int = 120) -> Path:
     """Save and close a matplotlib figure atomically (Agg backend)."""
-    import tempfile
-
     import matplotlib.pyplot as plt
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".png",
-                               dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix[1:] or "png")
     finally:
         plt.close(fig)
     return path

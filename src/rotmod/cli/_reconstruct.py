@@ -8,8 +8,11 @@ from typing import Any
 from rotmod.cli._common import (
     UserError,
     add_output,
+    add_progress,
     check_input,
     check_output,
+    iteration_bar,
+    progress_wanted,
     save_figure,
     say,
     use_agg,
@@ -39,6 +42,7 @@ def register(sub: Any) -> None:
                    help="bootstrap N Poisson re-draws for a per-pixel uncertainty map")
     p.add_argument("--seed", type=int, default=0, help="seed (NCAR, bootstrap; default 0)")
     add_output(p, help="image (FITS)")
+    add_progress(p)
     p.add_argument("--plot", default=None, metavar="PNG", help="also write a plot")
     p.add_argument("--mark", action="append", default=None, metavar="THETA,PHI",
                    help="mark a true source position on the plot (deg); repeatable")
@@ -75,7 +79,10 @@ def run(args: argparse.Namespace) -> int:
         kw["fit_background"] = True
     if args.uncertainty:
         kw.update(uncertainty="bootstrap", n_boot=args.uncertainty)
-    res = reconstruct(response, folded, args.method, seed=args.seed, **kw)
+    with iteration_bar(progress_wanted(args), args.method) as bar:
+        if bar is not None:
+            kw["callbacks"] = [lambda _solver, _it: bool(bar.update(1))]
+        res = reconstruct(response, folded, args.method, seed=args.seed, **kw)
     write_image(out, res, overwrite=args.overwrite,
                 meta={"folded": str(src), "response": str(rsp)})
     peak = np.unravel_index(int(np.argmax(res.image)), res.image.shape)

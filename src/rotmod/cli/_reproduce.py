@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from rotmod.cli._common import say
+from rotmod.cli._common import add_progress, progress_wanted, say
 
 
 def register(sub: Any) -> None:
@@ -29,11 +29,12 @@ def register(sub: Any) -> None:
                    help="comma-separated subset of steps (profiles, speed, images, prototype, "
                    "summary); the report is always written")
     p.add_argument("--seed", type=int, default=1, help="base seed (default 1)")
+    add_progress(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from rotmod.report import STEPS, reproduce
+    from rotmod.paper.report import STEPS, reproduce
 
     size = "tiny" if args.tiny else "quick" if args.quick else "full"
     steps = None
@@ -46,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--steps: unknown step(s) {', '.join(bad)}; steps are "
                             f"{', '.join(STEPS)}")
     result = reproduce(args.output, size=size, force=args.force, steps=steps, seed=args.seed,
-                       log=say)
+                       log=say, progress=progress_wanted(args))
     say(f"rotmod: report {result.index} ({result.run_time:.0f} s); summary figure "
         f"{result.summary}")
     return 0

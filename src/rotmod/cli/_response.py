@@ -33,7 +33,7 @@ def register(sub: Any) -> None:
     )
     add_instrument(p)
     add_energy(p)
-    p.add_argument("-m", "--model", default="exact", metavar="NAME",
+    p.add_argument("-m", "--model", default=None, metavar="NAME",
                    help="profile model (standard, advanced, advanced-approx, advanced-g0, "
                    "exact; default exact)")
     p.add_argument("--fov", type=quantity("deg"), default=14.0, metavar="DEG",
@@ -65,7 +65,9 @@ def parse_center(text: str) -> tuple[float, float]:
 
 def run(args: argparse.Namespace) -> int:
     from rotmod.io.response import write_response
-    from rotmod.profiles import MODELS
+    from rotmod.profiles import DEFAULT_MODEL, MODELS
+
+    args.model = args.model or DEFAULT_MODEL
     from rotmod.response import TimeBinning
     from rotmod.sky import SkyGrid
 

@@ -84,20 +84,31 @@ class Instrument:
     def paper(
         cls,
         *,
-        a: float = 4.0,
+        a: float | None = None,
         b: float | None = None,
         c: float | None = None,
-        h: float = 2.0,
-        L: float = 100.0,
-        sigma: float | None = 0.103,
+        h: float | None = None,
+        L: float | None = None,
+        sigma: float | None = None,
         detector_xy: tuple[float, float] = (0.0, 0.0),
     ) -> Instrument:
-        """The seed paper's simulation instrument: lead (11.34 g/cm3), L = 100 cm, one detector.
+        """The ``paper`` preset (the seed paper's simulation instrument) with changes.
 
-        ``b`` and ``c`` default to ``a``; ``sigma`` (cm2/g) defaults to the paper's 662 keV
-        value (pass ``None`` to use the XCOM database at the requested energy).
+        Every value not given is the preset's (``rotmod/presets/paper.toml``: lead, a = b = c
+        = 4 cm, h = 2 cm, L = 100 cm, one detector); ``b`` and ``c`` follow ``a`` when only
+        ``a`` is given.  Like the preset, the slats' attenuation comes from XCOM at the energy
+        asked for; ``sigma`` (cm2/g) fixes it at every energy instead (the paper's own
+        scenarios: ``sigma=rotmod.materials.PAPER_SIGMA_662``).
         """
-        b = a if b is None else b
-        c = a if c is None else c
-        mat = Material("Pb", density=11.34, mass_attenuation=sigma)
-        return cls(Mask(a, b, h, L, mat), DetectorArray.single(c, *detector_xy))
+        from rotmod.config import load_instrument  # the presets are built on this module
+
+        base = load_instrument("paper")
+        m = base.mask
+        a_ = m.slat_width if a is None else a
+        b_ = (m.slat_gap if a is None else a_) if b is None else b
+        c_ = (base.detectors.diameter if a is None else a_) if c is None else c
+        mat = m.material
+        if sigma is not None:
+            mat = Material(mat.name, density=mat.density, mass_attenuation=sigma)
+        mask = Mask(a_, b_, m.thickness if h is None else h, m.height if L is None else L, mat)
+        return cls(mask, DetectorArray.single(c_, *detector_xy), base.rotation_period)

@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +32,7 @@ import astropy.units as u
 import numpy as np
 from astropy.io import fits
 
+from rotmod._atomic import atomic_path
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.events import EventList, FoldedProfiles
 from rotmod.geometry import Instrument
@@ -130,15 +130,8 @@ def _write_atomic(hdul: fits.HDUList, path: str | os.PathLike, overwrite: bool) 
         raise ParameterError(f"path {str(p)!r} exists; pass overwrite=True to replace it")
     if not p.parent.exists():
         raise ParameterError(f"path {str(p)!r}: folder {str(p.parent)!r} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    os.close(fd)
-    try:
+    with atomic_path(p) as tmp:
         hdul.writeto(tmp, overwrite=True, checksum=True)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
     return p
 
 

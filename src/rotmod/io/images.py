@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rotmod._atomic import atomic_path
 from rotmod.errors import ParameterError
 
 __all__ = ["FitsImage", "read_image", "write_image"]
@@ -150,14 +150,8 @@ def write_image(
         for i in range(0, len(params_json), 60):
             th.header.add_comment(params_json[i : i + 60])
         hdus.append(th)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
-    os.close(fd)
-    try:
-        fits.HDUList(hdus).writeto(tmp, overwrite=True)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(p) as tmp:
+        fits.HDUList(hdus).writeto(tmp, overwrite=True, checksum=True)
     return p
 
 

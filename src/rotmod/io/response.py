@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from rotmod.errors import InstrumentMismatchError, ParameterError
+from rotmod.profiles.base import DEFAULT_MODEL
 from rotmod.response.operator import ResponseOperator
 
 __all__ = [
@@ -284,7 +285,7 @@ def write_response(
     instrument: Any,
     grid: Any,
     time_bins: Any,
-    model: Any = "advanced-approx",
+    model: Any = DEFAULT_MODEL,
     energy: Any = None,
     *,
     dtype: Any = np.float32,

@@ -32,7 +32,13 @@ import numpy as np
 from rotmod._validate import as_array, as_scalar
 from rotmod.errors import MaterialError
 
-__all__ = ["DATABASE_RANGE_KEV", "Material", "mass_attenuation"]
+__all__ = ["DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "Material", "mass_attenuation"]
+
+#: Mass attenuation of lead at 662 keV (cm^2/g) that the seed paper's Sec. 4 scenarios use
+#: (XCOM gives 0.110).  It is the paper's number at the paper's energy, so rotmod never
+#: applies it by default: pass it explicitly (``Instrument.paper(sigma=PAPER_SIGMA_662)``,
+#: ``mass_attenuation = "0.103 cm2/g"`` in a file) to reproduce the paper's figures.
+PAPER_SIGMA_662 = 0.103
 
 #: Energy range (keV) of the XCOM tables shipped with fisx.
 DATABASE_RANGE_KEV = (1.0, 1.0e8)

@@ -7,6 +7,7 @@ Pick one by name with :func:`get_model`.
 
 from rotmod.profiles.advanced import AdvancedModel
 from rotmod.profiles.base import (
+    DEFAULT_MODEL,
     MODELS,
     ProfileModel,
     ProjectedGeometry,
@@ -18,6 +19,7 @@ from rotmod.profiles.exact import ExactModel
 from rotmod.profiles.standard import StandardModel
 
 __all__ = [
+    "DEFAULT_MODEL",
     "MODELS",
     "AdvancedModel",
     "ExactModel",

@@ -267,6 +267,9 @@ def alpha_factor(tau: np.ndarray) -> np.ndarray:
     return np.where(np.isinf(tau), 0.0, mean - np.exp(-tau))
 
 
+@register_model("advanced-g0", g1="none")
+@register_model("advanced-approx", g1="approx")
+@register_model("advanced")
 class AdvancedModel(ProfileModel):
     """The paper's advanced profile (Sec. 3) in our conventions.
 
@@ -352,7 +355,3 @@ class AdvancedModel(ProfileModel):
         """Parameters that identify this model (for metadata)."""
         return {"model": self.name, "g1": self.g1}
 
-
-register_model("advanced", AdvancedModel)
-register_model("advanced-approx", lambda: AdvancedModel("approx"))
-register_model("advanced-g0", lambda: AdvancedModel("none"))

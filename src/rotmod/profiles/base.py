@@ -21,9 +21,11 @@ and sums.
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -32,6 +34,7 @@ from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument
 
 __all__ = [
+    "DEFAULT_MODEL",
     "MODELS",
     "ProfileModel",
     "ProjectedGeometry",
@@ -205,12 +208,28 @@ class ProfileModel(ABC):
         return {"model": self.name}
 
 
-MODELS: dict[str, type[ProfileModel] | Any] = {}
+MODELS: dict[str, Callable[[], ProfileModel]] = {}
+
+#: The model every entry point uses when none is named (API, command line, report): the exact
+#: model is valid for every geometry, and within the advanced model's domain it costs about
+#: the same (docs/physics.md).
+DEFAULT_MODEL = "exact"
+
+_M = TypeVar("_M", bound=type[ProfileModel])
 
 
-def register_model(name: str, factory: Any) -> None:
-    """Register ``factory`` (a class or a zero-argument callable) under ``name``."""
-    MODELS[name] = factory
+def register_model(name: str, **params: Any) -> Callable[[_M], _M]:
+    """Class decorator registering a :class:`ProfileModel` under ``name``.
+
+    ``params`` are passed to the class on :func:`get_model`, so one class can be registered
+    under several names (``@register_model("advanced-approx", g1="approx")``).
+    """
+
+    def deco(cls: _M) -> _M:
+        MODELS[name] = functools.partial(cls, **params) if params else cls
+        return cls
+
+    return deco
 
 
 def get_model(model: str | ProfileModel) -> ProfileModel:

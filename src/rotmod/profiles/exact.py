@@ -650,6 +650,7 @@ def _exact_grid(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, out):
 _SOURCE_CHUNK = 1 << 15
 
 
+@register_model("exact")
 class ExactModel(ProfileModel):
     """Exact profile from first principles, valid for every geometry (see module notes).
 
@@ -685,5 +686,3 @@ class ExactModel(ProfileModel):
             )
             out[:, :, n0:n1] = part
 
-
-register_model("exact", ExactModel)

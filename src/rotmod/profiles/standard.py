@@ -101,6 +101,7 @@ def _standard_grid(Xa, Ya, cos_xi, sin_xi, opacity, out):
             out[d, t, n] = 1.0 - opacity * segment_fraction(1.0 - abs(w - 1.0))
 
 
+@register_model("standard")
 class StandardModel(ProfileModel):
     """The paper's standard profile: thin slats, ``a = b = c``, constant transmission.
 
@@ -160,5 +161,3 @@ class StandardModel(ProfileModel):
         """Parameters that identify this model (for metadata)."""
         return {"model": self.name, "transmission": self.transmission}
 
-
-register_model("standard", StandardModel)

@@ -86,7 +86,7 @@ class BackProjection(Reconstructor):
         self.z[: m_.n_sky] = m
         self.mu = sky_counts + m_.fixed + E * c[:, None]
         self._record()
-        res = self.finalize("direct method (no iterations)")
+        res = self.finalise("direct method (no iterations)")
         res.background = (m_.fixed + E * c[:, None]) / np.where(E > 0, E, 1.0)
         return res
 
@@ -378,7 +378,7 @@ class NCAR(SIRT):
             else:
                 reason = "combined layers already " + reason
             self.z, self.mu = mart.z, mart.mu
-        res = self.finalize(reason)
+        res = self.finalise(reason)
         res.run_time = time.perf_counter() - t0
         res.extras.update(
             unlayered=full.image,

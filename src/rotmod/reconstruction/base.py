@@ -350,7 +350,7 @@ class Reconstructor(ABC):
     def run(self) -> ReconstructionResult:
         """Iterate until the stopping rule (or a callback) stops; return the result."""
         self.setup()
-        return self.finalize(self.run_from_setup())
+        return self.finalise(self.run_from_setup())
 
     def run_from_setup(self) -> str:
         """Iterate from the current state until a stop; return the stop reason."""
@@ -372,7 +372,7 @@ class Reconstructor(ABC):
         """Current sky estimate, image-shaped."""
         return self.model.split(self.z)[0].reshape(self.image_shape).copy()
 
-    def finalize(self, reason: str, extras: dict[str, Any] | None = None) -> ReconstructionResult:
+    def finalise(self, reason: str, extras: dict[str, Any] | None = None) -> ReconstructionResult:
         """Package the current state as a :class:`ReconstructionResult`."""
         v = self.data.valid
         params = {

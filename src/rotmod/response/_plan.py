@@ -17,7 +17,13 @@ import numpy as np
 from rotmod._validate import as_scalar
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray, Instrument
-from rotmod.profiles.base import ProfileModel, ProjectedGeometry, get_model, project
+from rotmod.profiles.base import (
+    DEFAULT_MODEL,
+    ProfileModel,
+    ProjectedGeometry,
+    get_model,
+    project,
+)
 from rotmod.response.binning import TimeBinning
 
 __all__ = ["ResponsePlan", "make_plan"]
@@ -128,7 +134,7 @@ def make_plan(
     instrument: Instrument,
     grid: Any,
     time_bins: Any,
-    model: str | ProfileModel = "advanced-approx",
+    model: str | ProfileModel = DEFAULT_MODEL,
     energy: Any = None,
     *,
     dtype: Any = np.float32,

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from rotmod.errors import ParameterError
-from rotmod.profiles.base import ProfileModel
+from rotmod.profiles.base import DEFAULT_MODEL, ProfileModel
 from rotmod.response._plan import ResponsePlan, make_plan
 from rotmod.response.operator import ResponseOperator
 
@@ -139,7 +139,7 @@ def build_response(
     instrument: Any,
     grid: Any,
     time_bins: Any,
-    model: str | ProfileModel = "advanced-approx",
+    model: str | ProfileModel = DEFAULT_MODEL,
     energy: Any = None,
     *,
     dtype: Any = np.float32,

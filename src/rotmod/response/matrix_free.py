@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from rotmod.profiles.base import ProfileModel
+from rotmod.profiles.base import DEFAULT_MODEL, ProfileModel
 from rotmod.response._plan import ResponsePlan, make_plan
 from rotmod.response.materialised import MaterialisedResponse
 from rotmod.response.operator import ResponseOperator
@@ -67,7 +67,7 @@ class MatrixFreeResponse(ResponseOperator):
         instrument: Any,
         grid: Any,
         time_bins: Any,
-        model: str | ProfileModel = "advanced-approx",
+        model: str | ProfileModel = DEFAULT_MODEL,
         energy: Any = None,
         *,
         dtype: Any = np.float64,

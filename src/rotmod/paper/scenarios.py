@@ -19,10 +19,6 @@ from rotmod.errors import ParameterError
 
 __all__ = ["SCENARIOS", "Scenario", "make_scenario"]
 
-#: Lead density (g/cm3) and the paper's 662 keV mass attenuation (cm2/g).
-RHO_PB = 11.34
-SIGMA_662 = 0.103
-
 
 @dataclass(frozen=True, eq=False)
 class Scenario:
@@ -122,9 +118,10 @@ def make_scenario(name: str, size: str = "small", seed: int = 0) -> Scenario:
     -------
     Scenario
     """
+    from rotmod.config import load_instrument
     from rotmod.events import fold
-    from rotmod.geometry import DetectorArray, Instrument, Mask
-    from rotmod.materials import Material
+    from rotmod.geometry import DetectorArray, Instrument
+    from rotmod.materials import PAPER_SIGMA_662
     from rotmod.montecarlo import PointSources, simulate_observation
     from rotmod.response import TimeBinning
     from rotmod.sky.grid import SkyGrid
@@ -135,9 +132,9 @@ def make_scenario(name: str, size: str = "small", seed: int = 0) -> Scenario:
     stopping = None
     if name in _PAPER:
         desc, energy, h, theta_deg = _PAPER[name]
-        # 662 keV: the paper's sigma; 122 keV: the XCOM database (opaque either way).
-        mat = Material("Pb", density=RHO_PB, mass_attenuation=SIGMA_662 if energy == 662 else None)
-        inst = Instrument(Mask(4.0, 4.0, h, 100.0, mat), DetectorArray.hexagonal(4.0, rings=1))
+        # The paper preset with seven detectors; 662 keV: the paper's sigma, 122 keV: XCOM.
+        one = Instrument.paper(h=h, sigma=PAPER_SIGMA_662 if energy == 662 else None)
+        inst = Instrument(one.mask, DetectorArray.hexagonal(4.0, rings=1), one.rotation_period)
         tmp = SkyGrid((1, 1), 1.0)
         if name == "c":
             th, ph = [theta_deg] * u.deg, [30.0] * u.deg
@@ -165,10 +162,7 @@ def make_scenario(name: str, size: str = "small", seed: int = 0) -> Scenario:
         desc = ("lab prototype: 19 x 3.8 cm detectors, b/L = 1.9 deg, two equal 122 keV sources "
                 "35' apart, flat background = total source rate")
         energy = 122.0
-        c = 3.8
-        L = c / np.tan(np.radians(1.9))
-        mat = Material("Pb", density=RHO_PB)
-        inst = Instrument(Mask(c, c, 2.0, L, mat), DetectorArray.hexagonal(c, rings=2))
+        inst = load_instrument("prototype")
         half = 35.0 / 60.0 / 2.0
         xs, ys = np.array([1.0, 1.0]), np.array([-half, half])
         tmp = SkyGrid((1, 1), 1.0)

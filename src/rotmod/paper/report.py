@@ -5,7 +5,7 @@ an interrupted step leaves nothing that looks finished; a rerun skips steps whos
 ``result.json`` exists unless ``force``):
 
 ``profiles``
-    Every validation scenario of :mod:`rotmod.validation` (the paper's Figs. 4-8 set-ups,
+    Every validation scenario of :mod:`rotmod.paper.validation` (the paper's Figs. 4-8 set-ups,
     the two imaging set-ups and four geometries outside the advanced model's validity):
     Monte Carlo vs standard vs advanced vs exact, figures and chi-square per model.
 ``speed``
@@ -26,11 +26,10 @@ The report ``index.html`` is rewritten at the end of every run from the steps' r
 
 from __future__ import annotations
 
-import html
+import contextlib
 import json
 import os
 import shutil
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -39,27 +38,23 @@ from typing import Any
 
 import numpy as np
 
+from rotmod._atomic import atomic_dir, atomic_path, write_text
 from rotmod.errors import ParameterError
+from rotmod.materials import PAPER_SIGMA_662
+from rotmod.paper.claims import (
+    IMAGE_CLAIMS,
+    OUTSIDE,
+    PAPER_SPEED_S,
+    PROFILE_CLAIMS,
+    PROTO_CLAIM,
+    SPEED_LABEL,
+)
+from rotmod.paper.page import write_report
+from rotmod.paper.provenance import provenance
 
-__all__ = ["SIZES", "STEPS", "ReproduceResult", "reproduce", "write_report"]
+__all__ = ["SIZES", "STEPS", "ReproduceResult", "reproduce"]
 
 STEPS = ("profiles", "speed", "images", "prototype", "summary")
-
-#: The paper's IDL timings for one detector, 4900 sky bins x 560 time bins (s).
-PAPER_SPEED_S = {
-    "standard": 0.8,
-    "advanced-g0": 2.6,
-    "advanced-approx": 5.4,
-    "exact": None,
-    "montecarlo": 1.3 * 86400.0,
-}
-_SPEED_LABEL = {
-    "standard": "standard",
-    "advanced-g0": "advanced, G0 only",
-    "advanced-approx": "advanced, G0 + G1~",
-    "exact": "exact (not in the paper)",
-    "montecarlo": "Monte Carlo (SNR 10 per time bin)",
-}
 
 #: Run sizes.  ``tiny`` is for the test suite (seconds; results not meaningful).
 SIZES: dict[str, dict[str, Any]] = {
@@ -87,40 +82,6 @@ SIZES: dict[str, dict[str, Any]] = {
         "proto_models": ("standard", "advanced", "exact"), "proto_methods": ("mlem", "ncar"),
     },
 }
-
-#: What the paper says about each validation scenario.
-_PROFILE_CLAIMS = {
-    "thick20": "Fig. 4: the MC profile is asymmetric (shadow lengthening); the standard formula "
-               "cannot describe it; the advanced profile is 'virtually identical' to the MC.",
-    "wide50": "Fig. 5: asymmetric envelope and reduced contrast (transmission through a 1 cm "
-              "mask); the standard formula describes neither; the advanced one does.",
-    "gap12": "Fig. 6: b = 12 cm: the advanced profile shows the expected saturation of the "
-             "transmission several times per rotation (standard not applicable).",
-    "slat12": "Fig. 7: a = 12 cm: the advanced formula describes the intervals of zero "
-              "transmission ('dead time') (standard not applicable).",
-    "det12": "Fig. 8: c = 12 cm: up to two slats shadow the detector at once, described by the "
-             "advanced formula (standard not applicable).",
-    "thin5mm": "Fig. 10 set-up: 55 % transmission through 5 mm slats at 662 keV, accounted for "
-               "by the advanced formula, not by the standard one.",
-    "zen48": "Fig. 11 set-up: at 48 deg many photons clip the slats; the standard formula "
-             "does not account for it.",
-}
-_OUTSIDE = ("Outside the advanced formula's validity (Sec. 3.4: requires a, b >= h tan "
-            "theta); the paper has no model here. rotmod's exact model should match the MC.")
-
-_IMAGE_CLAIMS = {
-    "a": "Fig. 9: 122 keV source near the axis, 2 cm mask (opaque): the standard and "
-         "advanced responses both reconstruct the source accurately.",
-    "b": "Fig. 10: 662 keV, 5 mm mask (55 % slat transmission): the standard response "
-         "reconstructs spurious peaks; the advanced one does not.",
-    "c": "Fig. 11: 662 keV at theta ~ 48 deg, 2 cm mask: the standard response gives "
-         "spurious peaks and no source at the true location; the advanced one finds the "
-         "source 'virtually free of noise'.",
-}
-_PROTO_CLAIM = ("Sec. 4.3 (citing Budden et al. 2010): the 19-detector prototype (b/L = "
-                "1.9 deg) resolves two point sources 35' apart in the presence of background "
-                "(super-resolution, with NCAR).")
-
 
 @dataclass
 class ReproduceResult:
@@ -174,16 +135,14 @@ def _clean(o: Any) -> Any:
 
 def _write_json(path: Path, obj: Any) -> None:
     text = json.dumps(_clean(json.loads(json.dumps(obj, default=_json_default))), indent=1)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
+    write_text(path, text)
 
 
 def _savefig(fig: Any, path: Path, dpi: int = 110) -> str:
     import matplotlib.pyplot as plt
 
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix[1:])
     plt.close(fig)
     return path.name
 
@@ -197,21 +156,22 @@ def _run_step(
     if done.exists() and not force:
         log(f"[{name}] done already ({final}); skipped (use --force to redo)")
         return json.loads(done.read_text())
-    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.tmp-", dir=out))
     t0 = time.perf_counter()
     log(f"[{name}] running...")
-    try:
+    with atomic_dir(final) as tmp:
         res = fn(tmp)
         res["step_time_s"] = time.perf_counter() - t0
         _write_json(tmp / "result.json", res)
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log(f"[{name}] finished in {res['step_time_s']:.1f} s")
     return json.loads(done.read_text())
+
+
+def _progress(total: int, enabled: bool) -> Any:
+    if not enabled:
+        return contextlib.nullcontext(None)
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="reproduce", unit="step")
 
 
 # --------------------------------------------------------------------------- steps
@@ -220,7 +180,7 @@ def _run_step(
 def _step_profiles(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
     import matplotlib.pyplot as plt
 
-    from rotmod.validation import SCENARIOS, plot_scenario, run_scenario
+    from rotmod.paper.validation import SCENARIOS, plot_scenario, run_scenario
 
     names = cfg["scenarios"] or tuple(s.name for s in SCENARIOS)
     rows = []
@@ -244,7 +204,7 @@ def _step_profiles(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> 
         rows.append({
             "name": name, "title": sc.title, "paper": sc.paper,
             "advanced_valid": sc.advanced_valid,
-            "claim": _PROFILE_CLAIMS.get(name, _OUTSIDE),
+            "claim": PROFILE_CLAIMS.get(name, OUTSIDE),
             "chi2_dof": r.chi2_dof, "max_dev": r.max_dev,
             "skipped": {m: s.split(";")[0][:160] for m, s in r.skipped.items()},
             "n_photons": int(cfg["n_photons"]), "n_angles": int(cfg["n_angles"]),
@@ -271,7 +231,7 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     from rotmod.profiles import MODELS, get_model
     from rotmod.sky import SkyGrid
 
-    inst = Instrument.paper()  # a = b = c = 4 cm, h = 2 cm, L = 100 cm, sigma = 0.103
+    inst = Instrument.paper(sigma=PAPER_SIGMA_662)  # the paper's timing set-up (its sigma)
     grid = SkyGrid(cfg["speed_grid"], 14.0 / cfg["speed_grid"][0])
     theta, phi = grid.directions()
     n_bins = cfg["speed_bins"]
@@ -279,7 +239,7 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     rows = []
     for name in ("standard", "advanced-g0", "advanced-approx", "exact"):
         if name not in MODELS:
-            rows.append({"model": name, "label": _SPEED_LABEL[name], "time_s": None,
+            rows.append({"model": name, "label": SPEED_LABEL[name], "time_s": None,
                          "paper_s": PAPER_SPEED_S[name], "note": "model not available"})
             continue
         log(f"[speed] {name}")
@@ -288,7 +248,7 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
             lambda model=model: model.profile(inst, theta, phi, xi, dtype=np.float32),
             cfg["speed_repeats"],
         )
-        rows.append({"model": name, "label": _SPEED_LABEL[name], "time_s": t,
+        rows.append({"model": name, "label": SPEED_LABEL[name], "time_s": t,
                      "paper_s": PAPER_SPEED_S[name]})
     # Monte Carlo: measured photon rate, extrapolated to SNR 10 per time bin.
     log("[speed] Monte Carlo photon rate")
@@ -307,7 +267,7 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     # SNR 10 per time bin: 100 transmitted photons per (time bin, sky bin) at the mean
     # transmission, i.e. 100 / mean_p incident photons per cell.
     need = 4900 * 560 * 100.0 / max(mean_p, 1e-9)
-    rows.append({"model": "montecarlo", "label": _SPEED_LABEL["montecarlo"],
+    rows.append({"model": "montecarlo", "label": SPEED_LABEL["montecarlo"],
                  "time_s": need / rate, "paper_s": PAPER_SPEED_S["montecarlo"],
                  "note": f"estimated: {need:.3g} photons at the measured "
                          f"{rate:.3g} photons/s ({n_total:.3g} photons in {dt:.2f} s; "
@@ -320,26 +280,17 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     }
 
 
-def _recon_available() -> str | None:
-    try:
-        import rotmod.reconstruction  # noqa: F401
-        from rotmod.reconstruction import metrics, scenarios  # noqa: F401
-        from rotmod.response import build_response  # noqa: F401
-    except ImportError as exc:
-        return f"rotmod.reconstruction or rotmod.response is not available ({exc})"
-    return None
-
-
 def _image_case(
     tmp: Path, name: str, cfg: dict[str, Any], seed: int, log: Callable, *, prefix: str,
 ) -> dict[str, Any]:
     import matplotlib.pyplot as plt
 
     from rotmod.errors import ModelValidityError
+    from rotmod.io.images import write_image
+    from rotmod.paper.scenarios import make_scenario
     from rotmod.plotting.images import plot_comparison
     from rotmod.reconstruction import ALGORITHMS, reconstruct
     from rotmod.reconstruction.metrics import evaluate
-    from rotmod.reconstruction.scenarios import make_scenario
     from rotmod.response import TimeBinning, build_response
 
     log(f"[{prefix}] scenario {name}: Monte Carlo observation")
@@ -379,6 +330,9 @@ def _image_case(
                          resolution=sc.resolution)
             out["results"].append({"model": model, "method": method, **m})
             images[f"{model}|{method}"] = res.image
+            fits_name = f"{prefix}_{name}_{model}_{method}.fits"
+            write_image(tmp / fits_name, res, meta={"scenario": name, "response": model})
+            out.setdefault("fits", []).append(fits_name)
     np.savez_compressed(tmp / f"{prefix}_{name}.npz",
                         theta_deg=sc.theta.to_value("deg"), phi_deg=sc.phi.to_value("deg"),
                         **images)
@@ -395,27 +349,21 @@ def _image_case(
 
 
 def _step_images(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
-    missing = _recon_available()
-    if missing:
-        return {"missing": missing, "cases": []}
     cases = []
     for k, name in enumerate(cfg["image_scenarios"]):
         case = _image_case(tmp, name, cfg, seed + k, log, prefix="image")
-        case["claim"] = _IMAGE_CLAIMS[name]
+        case["claim"] = IMAGE_CLAIMS[name]
         cases.append(case)
     skipped = [n for n in ("a", "b", "c") if n not in cfg["image_scenarios"]]
     return {"cases": cases, "not_run": skipped}
 
 
 def _step_prototype(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
-    missing = _recon_available()
-    if missing:
-        return {"missing": missing}
     if not cfg["prototype"]:
         return {"not_run": "the tiny run skips the prototype case"}
     pcfg = {**cfg, "image_models": cfg["proto_models"], "methods": cfg["proto_methods"]}
     case = _image_case(tmp, "d", pcfg, seed, log, prefix="prototype")
-    case["claim"] = _PROTO_CLAIM
+    case["claim"] = PROTO_CLAIM
     return {"case": case}
 
 
@@ -480,240 +428,6 @@ def _step_summary(out: Path, tmp: Path, log: Callable) -> dict[str, Any]:
             "image_case": imgs[0]["name"] if imgs else None}
 
 
-# --------------------------------------------------------------------------- report
-
-
-def _fmt(v: Any, spec: str = ".3g") -> str:
-    if v is None:
-        return "–"
-    if isinstance(v, float) and not np.isfinite(v):
-        return "–"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, int | float):
-        return format(v, spec)
-    return html.escape(str(v))
-
-
-def _fmt_time(s: float | None) -> str:
-    if s is None:
-        return "–"
-    if s >= 86400:
-        return f"{s / 86400:.2g} days"
-    if s >= 3600:
-        return f"{s / 3600:.2g} h"
-    if s >= 60:
-        return f"{s / 60:.2g} min"
-    if s >= 1:
-        return f"{s:.3g} s"
-    return f"{s * 1e3:.3g} ms"
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    h = "".join(f"<th>{html.escape(c)}</th>" for c in header)
-    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><tr>{h}</tr>{body}</table>"
-
-
-def _section_profiles(res: dict[str, Any] | None) -> str:
-    if not res:
-        return "<p>Not run.</p>"
-    models = ("standard", "advanced", "advanced-approx", "advanced-g0", "exact")
-    rows = []
-    for s in res["scenarios"]:
-        cells = [f"<b>{html.escape(s['name'])}</b><br><small>{html.escape(s['title'])}</small>",
-                 html.escape(s["paper"])]
-        for m in models:
-            if m in s["chi2_dof"]:
-                cells.append(f"{_fmt(s['chi2_dof'][m])}<br><small>max |Δ| "
-                             f"{_fmt(s['max_dev'][m], '.3f')}</small>")
-            else:
-                cells.append("<small>n/a</small>")
-        rows.append(cells)
-    n = res["scenarios"][0]
-    out = [
-        f"<p>Monte Carlo: {n['n_photons']} photons per (detector, mask angle, source) cell, "
-        f"{n['n_angles']} mask angles, an on-axis and an off-axis detector, two azimuths. "
-        "χ²/dof of each model against the MC (1 = agreement within the MC's statistics; "
-        "n/a = the model refuses the geometry) and the largest absolute deviation.</p>",
-        _table(["scenario", "paper", *models], rows),
-    ]
-    for s in res["scenarios"]:
-        best = min(s["chi2_dof"], key=lambda m: s["chi2_dof"][m]) if s["chi2_dof"] else None
-        obtained = "; ".join(f"{m}: χ²/dof {_fmt(v)}" for m, v in s["chi2_dof"].items())
-        if s["skipped"]:
-            obtained += "; refused: " + ", ".join(s["skipped"])
-        out.append(
-            f"<h3>{html.escape(s['name'])}: {html.escape(s['title'])}</h3>"
-            f"<p class='claim'><b>Paper:</b> {html.escape(s['claim'])}</p>"
-            f"<p class='got'><b>rotmod:</b> {obtained}. Closest to the MC: "
-            f"{html.escape(str(best))}.</p>"
-            f"<img src='profiles/{s['figure']}' width='720'>"
-        )
-    return "\n".join(out)
-
-
-def _section_speed(res: dict[str, Any] | None) -> str:
-    if not res:
-        return "<p>Not run.</p>"
-    rows = []
-    for r in res["rows"]:
-        ratio = (f"{r['paper_s'] / r['time_s']:.3g}×" if r.get("time_s") and r.get("paper_s")
-                 else "–")
-        rows.append([html.escape(r["label"]), _fmt_time(r.get("paper_s")),
-                     _fmt_time(r.get("time_s")), ratio,
-                     f"<small>{html.escape(r.get('note', ''))}</small>"])
-    size = (f"{res['n_sky']} sky bins ({res['grid'][0]}×{res['grid'][1]}) × {res['n_bins']} "
-            "time bins")
-    warn = "" if res["paper_size"] else (
-        " <b>Reduced size (tiny run): not comparable with the paper's figures.</b>")
-    return (
-        f"<p class='claim'><b>Paper:</b> one detector's response, 4900 × 560, in IDL 6.3: "
-        "standard 0.8 s, advanced (G0) 2.6 s, advanced (G0 + G1~) 5.4 s; a Monte Carlo with "
-        "SNR 10 per time bin would take almost 1.3 days.</p>"
-        f"<p class='got'><b>rotmod:</b> {size}, one detector, float32, median of "
-        f"{res['repeats']} run(s) after a warm-up, {res['threads']} thread(s) on "
-        f"{res['cpus']} CPU(s).{warn}</p>"
-        + _table(["computation", "paper (IDL)", "rotmod", "speed-up", "note"], rows)
-    )
-
-
-def _case_html(case: dict[str, Any], folder: str) -> str:
-    rows = []
-    for r in case["results"]:
-        if "skipped" in r:
-            rows.append([html.escape(r["model"]), "–", f"refused: {html.escape(r['skipped'])}",
-                         "", "", "", "", ""])
-            continue
-        extra = _fmt(r.get("dip"), ".3f") if "dip" in r else _fmt(r.get("fwhm_over_bL"), ".2f")
-        rows.append([
-            html.escape(r["model"]), html.escape(r["method"]), _fmt(r["loc_err_max"], ".3f"),
-            _fmt(r["spurious"], ".3f"), _fmt(r["flux_ratio"], ".3f"), extra,
-            _fmt(r["chi2_dof"], ".3f"), f"{int(r['n_iter'])} / {_fmt(r['run_time'], '.2g')} s",
-        ])
-    two = len(case["sources_deg"]) == 2
-    src = "; ".join(f"θ = {t:.3g}°, φ = {p:.3g}°" for t, p in case["sources_deg"])
-    g = case["grid"]
-    txt = (
-        f"<h3>{html.escape(case['description'])}</h3>"
-        f"<p class='claim'><b>Paper:</b> {html.escape(case['claim'])}</p>"
-        f"<p>Monte Carlo observation: {case['n_det']} detector(s), {case['energy_keV']:g} keV, "
-        f"{case['exposure_s']:g} s, {case['counts']} counts, background "
-        f"{case['background_per_det']:g} /s per detector; source(s) {src}; grid "
-        f"{g['shape'][1]}×{g['shape'][0]} pixels of {g['pixel_size']:.3g}° centred at "
-        f"({g['center'][0]:.3g}°, {g['center'][1]:.3g}°) (tangent plane); {case['n_bins']} "
-        f"time bins ({case['bin_mode']}); b/L = {case['resolution_deg']:.3g}°.</p>"
-        + _table(["response", "method", "localisation error (deg)",
-                  "strongest spurious peak / true peak", "recovered flux / true",
-                  "dip between sources (<1: resolved)" if two else "FWHM / (b/L)",
-                  "χ²/dof", "iterations / time"], rows)
-    )
-    good = [r for r in case["results"] if "loc_err_max" in r]
-    if good:
-        parts = []
-        for r in good:
-            s = (f"{r['model']} + {r['method']}: source found within "
-                 f"{_fmt(r['loc_err_max'], '.2f')}°, spurious/true {_fmt(r['spurious'], '.2f')}")
-            if "dip" in r:
-                s += f", dip {_fmt(r['dip'], '.2f')}"
-            parts.append(s)
-        txt += f"<p class='got'><b>rotmod:</b> {html.escape('; '.join(parts))}.</p>"
-    if case.get("figure"):
-        txt += f"<img src='{folder}/{case['figure']}' width='900'>"
-    return txt
-
-
-def _section_images(res: dict[str, Any] | None) -> str:
-    if not res:
-        return "<p>Not run.</p>"
-    if res.get("missing"):
-        return f"<p class='missing'><b>Not available:</b> {html.escape(res['missing'])}.</p>"
-    out = [_case_html(c, "images") for c in res["cases"]]
-    if res.get("not_run"):
-        out.append(f"<p>Not run at this size: scenario(s) {', '.join(res['not_run'])}.</p>")
-    return "\n".join(out)
-
-
-def _section_prototype(res: dict[str, Any] | None) -> str:
-    if not res:
-        return "<p>Not run.</p>"
-    if res.get("missing"):
-        return f"<p class='missing'><b>Not available:</b> {html.escape(res['missing'])}.</p>"
-    if res.get("not_run"):
-        return f"<p>{html.escape(res['not_run'])}.</p>"
-    return _case_html(res["case"], "prototype")
-
-
-_CSS = """
-body{font-family:sans-serif;max-width:1000px;margin:2em auto;line-height:1.4;color:#222}
-table{border-collapse:collapse;margin:0.8em 0;font-size:0.85em}
-td,th{border:1px solid #bbb;padding:3px 6px;text-align:left;vertical-align:top}
-th{background:#eee} .claim{background:#f4f4ff;padding:4px 8px}
-.got{background:#f2fff2;padding:4px 8px} .missing{background:#fff2f2;padding:4px 8px}
-img{border:1px solid #ddd;margin:4px 0}
-"""
-
-
-def write_report(output: str | os.PathLike, *, size: str, run_time: float | None,
-                 total_time: float | None = None) -> Path:
-    """Write ``<output>/index.html`` from the steps' ``result.json`` files.
-
-    Parameters
-    ----------
-    output : path
-        The reproduce folder.
-    size : str
-        The run size shown in the report.
-    run_time : float or None
-        Wall time of the last run (s).
-    total_time : float or None
-        Sum of the steps' own times (s), including steps done in earlier runs.
-
-    Returns
-    -------
-    Path
-    """
-    import rotmod
-
-    out = Path(output)
-    res: dict[str, Any] = {}
-    for s in STEPS:
-        p = out / s / "result.json"
-        res[s] = json.loads(p.read_text()) if p.exists() else None
-    when = time.strftime("%Y-%m-%d %H:%M:%S")
-    steps_t = "; ".join(
-        f"{s} {res[s]['step_time_s']:.1f} s" for s in STEPS if res[s] and "step_time_s" in res[s]
-    )
-    parts = [
-        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
-        "<title>rotmod: reproduction of Budden et al.</title>",
-        f"<style>{_CSS}</style></head><body>",
-        "<h1>rotmod: the seed paper's results, regenerated</h1>",
-        "<p>Budden, Budden, Case &amp; Cherry, <i>Characteristic Count Rate Profiles for a "
-        "Rotating Modulator Gamma-Ray Imager</i>. For each result: what the paper claims "
-        "(blue) and what rotmod obtained in this run (green).</p>",
-        f"<p>rotmod {html.escape(rotmod.__version__)}; run size <b>{html.escape(size)}</b>; "
-        f"generated {when}; this run took <b>{_fmt_time(run_time)}</b>"
-        + (f" (all steps: {_fmt_time(total_time)}: {steps_t})" if total_time else "")
-        + ".</p>",
-        "<img src='summary.png' width='900'>" if (out / "summary.png").exists() else "",
-        "<h2 id='profiles'>1. Characteristic profiles: Monte Carlo vs standard vs advanced vs "
-        "exact</h2>", _section_profiles(res["profiles"]),
-        "<h2 id='speed'>2. Computational speed</h2>", _section_speed(res["speed"]),
-        "<h2 id='images'>3. Image reconstructions: standard vs advanced/exact response</h2>",
-        _section_images(res["images"]),
-        "<h2 id='prototype'>4. Lab prototype: two sources 35′ apart</h2>",
-        _section_prototype(res["prototype"]),
-        "</body></html>",
-    ]
-    path = out / "index.html"
-    fd, tmp = tempfile.mkstemp(prefix=".index.html.", dir=out)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write("\n".join(parts))
-    os.replace(tmp, path)
-    return path
-
-
 # --------------------------------------------------------------------------- entry point
 
 
@@ -725,6 +439,7 @@ def reproduce(
     steps: Sequence[str] | None = None,
     seed: int = 1,
     log: Callable[[str], None] | None = None,
+    progress: bool = False,
 ) -> ReproduceResult:
     """Regenerate the seed paper's results into ``output`` (see the module notes).
 
@@ -742,6 +457,8 @@ def reproduce(
         Base seed of every Monte Carlo and randomised reconstruction.
     log : callable, optional
         Receives one progress line per step (the CLI prints them to stderr).
+    progress : bool
+        Show a progress bar over the steps (tqdm).
 
     Returns
     -------
@@ -767,7 +484,8 @@ def reproduce(
                 f"output {str(out)!r} holds a {prev!r} run; use another folder or --force to "
                 f"redo it as {size!r}"
             )
-    _write_json(marker, {"size": size, "seed": seed})
+    prov = provenance(seed)
+    _write_json(marker, {"size": size, "seed": seed, "provenance": prov})
     for stale in out.glob(".*.tmp-*"):
         shutil.rmtree(stale, ignore_errors=True)
     cfg = SIZES[size]
@@ -780,21 +498,25 @@ def reproduce(
         "prototype": lambda tmp: _step_prototype(tmp, cfg, seed, say),
         "summary": lambda tmp: _step_summary(out, tmp, say),
     }
-    for i, name in enumerate(s for s in STEPS if s in chosen):
-        say(f"step {i + 1}/{len(chosen)}: {name}")
-        results[name] = _run_step(name, out, fns[name], force=force or name == "summary",
-                                  log=say)
-        src = out / "summary" / "summary.png"
-        if name == "summary" and src.exists():
-            tmp = out / ".summary.png.tmp"
-            shutil.copyfile(src, tmp)
-            os.replace(tmp, out / "summary.png")
+    order = [s for s in STEPS if s in chosen]
+    with _progress(len(order), progress) as bar:
+        for i, name in enumerate(order):
+            say(f"step {i + 1}/{len(chosen)}: {name}")
+            results[name] = _run_step(name, out, fns[name], force=force or name == "summary",
+                                      log=say)
+            src = out / "summary" / "summary.png"
+            if name == "summary" and src.exists():
+                with atomic_path(out / "summary.png") as tmp:
+                    shutil.copyfile(src, tmp)
+            if bar is not None:
+                bar.update(1)
     run_time = time.perf_counter() - t0
     total = 0.0
     for s in STEPS:
         p = out / s / "result.json"
         if p.exists():
             total += json.loads(p.read_text()).get("step_time_s", 0.0)
-    index = write_report(out, size=size, run_time=run_time, total_time=total)
+    index = write_report(out, steps=STEPS, size=size, run_time=run_time, total_time=total,
+                         provenance=prov)
     summary = out / "summary.png"
     return ReproduceResult(out, index, summary if summary.exists() else None, run_time, results)

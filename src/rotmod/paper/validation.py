@@ -25,7 +25,7 @@ import numpy as np
 
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
-from rotmod.materials import Material
+from rotmod.materials import PAPER_SIGMA_662, Material
 from rotmod.montecarlo import MCProfiles, simulate_profiles
 from rotmod.profiles import MODELS, get_model
 
@@ -61,8 +61,9 @@ class Scenario:
         Source azimuths (deg), one source each.
     detectors : tuple of (float, float)
         Detector centres (cm): the first on axis, the second off axis.
-    L, density, sigma : float
-        Mask height (cm), slat density (g/cm3) and mass attenuation (cm2/g).
+    L, sigma : float
+        Mask height (cm) and the slats' mass attenuation (cm2/g; lead's density from the
+        material database).
     paper : str
         Where the paper shows it.
     advanced_valid : bool
@@ -79,14 +80,13 @@ class Scenario:
     phi_deg: tuple[float, ...] = (32.0, 127.0)
     detectors: tuple[tuple[float, float], ...] = ((0.0, 0.0), (8.4, 4.85))
     L: float = 100.0
-    density: float = 11.34
-    sigma: float = 0.103
+    sigma: float = PAPER_SIGMA_662
     paper: str = ""
     advanced_valid: bool = True
 
     def instrument(self) -> Instrument:
         """The scenario's instrument (lead with the fixed 662 keV attenuation)."""
-        mat = Material("Pb", density=self.density, mass_attenuation=self.sigma)
+        mat = Material("lead", mass_attenuation=self.sigma)
         return Instrument(
             Mask(self.a, self.b, self.h, self.L, mat),
             DetectorArray(np.array(self.detectors, dtype=float), self.c),

@@ -1,0 +1,76 @@
+"""Atomic file and folder writes whose modes follow the umask.
+
+Every file rotmod writes goes through :func:`atomic_path` (or :func:`write_text`): the content
+is written to a temporary name in the target's folder and renamed over the target only when
+complete, so an interruption never leaves a half-written file under the final name.
+``tempfile`` creates files 0600 and folders 0700 whatever the umask; the final object gets
+the mode a plain ``open()``/``mkdir()`` would have given it (0666/0777 minus the umask), so
+results are as readable as the user's other files.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+__all__ = ["atomic_dir", "atomic_path", "current_umask", "write_text"]
+
+
+def current_umask() -> int:
+    """The process umask (read without changing it for other threads for long)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _default_mode(directory: bool) -> int:
+    return (0o777 if directory else 0o666) & ~current_umask()
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success rename it to ``path``.
+
+    The caller writes the whole file to the yielded path (any library that takes a file
+    name).  On an exception the temporary file is removed and ``path`` is left untouched.
+    """
+    p = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.chmod(tmp, _default_mode(False))
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path``; on success it replaces ``path``.
+
+    An existing ``path`` is removed only once the new folder is complete.
+    """
+    p = Path(path)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.tmp-", dir=p.parent or "."))
+    try:
+        yield tmp
+        os.chmod(tmp, _default_mode(True))
+        if p.exists():
+            shutil.rmtree(p)
+        os.replace(tmp, p)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)

@@ -7,9 +7,9 @@ import pytest
 
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import ParameterError
-from rotmod.io.response import write_response
+from rotmod.response.stored import write_response
 from rotmod.materials import PAPER_SIGMA_662
-from rotmod.parallel import get_client
+from rotmod.response.parallel import get_client
 from rotmod.response import MatrixFreeResponse, build_response
 from rotmod.sky import SkyGrid
 

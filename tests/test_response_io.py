@@ -7,7 +7,7 @@ import pytest
 
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import InstrumentMismatchError, ParameterError
-from rotmod.io.response import (
+from rotmod.response.stored import (
     StoredResponse,
     load_response,
     open_response,

@@ -33,7 +33,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_array, as_scalar
+from rotmod._validate import as_array, as_int, as_scalar
 from rotmod.errors import ModelValidityError, ParameterError
 
 __all__ = ["DesignScan", "pareto_front", "scan_designs"]
@@ -259,8 +259,7 @@ def scan_designs(
     E = as_array(energies, "energies", u.keV, lo=0.0, lo_open=True, ndim=1)
     f = as_scalar(fov, "fov", u.deg, lo=0.0, hi=180.0, hi_open=True)
     for name, val in (("n_theta", n_theta), ("n_phi", n_phi), ("n_angles", n_angles)):
-        if isinstance(val, bool) or not isinstance(val, int | np.integer) or val < 1:
-            raise ParameterError(f"{name} must be an integer >= 1, got {val!r}")
+        as_int(val, name, 1)
     mat = material if isinstance(material, Material) else Material(str(material))
     if mu is None:
         mus = np.array([float(mat.linear_attenuation(e)) for e in E])

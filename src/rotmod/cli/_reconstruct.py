@@ -54,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
 
     from rotmod.io import read_folded
     from rotmod.io.images import write_image
-    from rotmod.io.response import open_response
     from rotmod.reconstruction import ALGORITHMS, reconstruct
+    from rotmod.response.stored import open_response
 
     src = check_input(args.folded, "folded profiles")
     rsp = check_input(args.response, "response")

@@ -64,8 +64,8 @@ def parse_center(text: str) -> tuple[float, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rotmod.io.response import write_response
     from rotmod.profiles import DEFAULT_MODEL, MODELS
+    from rotmod.response.stored import write_response
 
     args.model = args.model or DEFAULT_MODEL
     from rotmod.response import TimeBinning

@@ -21,7 +21,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle, as_angle_scalar, as_scalar
+from rotmod._validate import as_angle, as_angle_scalar, as_int, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
 from rotmod.events.gti import check_gti
@@ -33,9 +33,7 @@ log = logging.getLogger(__name__)
 
 
 def _check_n_bins(n_bins: Any) -> int:
-    if isinstance(n_bins, bool) or not isinstance(n_bins, int | np.integer) or n_bins < 1:
-        raise ParameterError(f"n_bins must be an integer >= 1, got {n_bins!r}")
-    return int(n_bins)
+    return as_int(n_bins, "n_bins", 1)
 
 
 def _rotations(t: np.ndarray, period: float, start_phase: float) -> np.ndarray:

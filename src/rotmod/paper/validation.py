@@ -23,6 +23,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
+from rotmod._validate import as_int
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import PAPER_SIGMA_662, Material
@@ -234,8 +235,7 @@ def run_scenario(
     sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
     if not isinstance(sc, Scenario):
         raise ParameterError(f"scenario must be a Scenario or a name, got {type(sc)}")
-    if isinstance(n_angles, bool) or not isinstance(n_angles, int | np.integer) or n_angles < 1:
-        raise ParameterError(f"n_angles must be an integer >= 1, got {n_angles!r}")
+    as_int(n_angles, "n_angles", 1)
     inst = sc.instrument()
     # Bin centres: an angle grid that avoids the exact-alignment angles xi + phi = pi/2 of
     # the scenarios' round azimuths.

@@ -9,13 +9,13 @@ Algorithms use only the response's ``forward``, ``adjoint`` and ``sensitivity``.
 
 from rotmod.reconstruction import algorithms as _algorithms  # noqa: F401  (registers)
 from rotmod.reconstruction.algorithms import MART, MLEM, NCAR, SIRT, BackProjection
+from rotmod.reconstruction.api import reconstruct
 from rotmod.reconstruction.base import (
     ALGORITHMS,
     ReconstructionResult,
     Reconstructor,
     StoppingRule,
     get_algorithm,
-    reconstruct,
     register_algorithm,
 )
 from rotmod.reconstruction.bootstrap import bootstrap_images

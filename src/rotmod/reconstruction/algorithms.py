@@ -13,13 +13,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from rotmod._validate import as_int
 from rotmod.errors import ParameterError
 from rotmod.reconstruction.base import (
     ReconstructionResult,
     Reconstructor,
     StoppingRule,
     _check_float,
-    _check_int,
     register_algorithm,
 )
 from rotmod.reconstruction.stats import chi2, deviance
@@ -143,7 +143,7 @@ class MART(Reconstructor):
     def _check_params(self) -> None:
         p = self.params
         p["relax"] = _check_float(p["relax"], "relax", 0.0, hi=1.0)
-        p["n_subsets"] = _check_int(p["n_subsets"], "n_subsets", 1)
+        p["n_subsets"] = as_int(p["n_subsets"], "n_subsets", 1)
         if p["n_subsets"] > self.data.shape[1]:
             raise ParameterError(
                 f"n_subsets must be <= the number of time bins ({self.data.shape[1]}), "
@@ -294,7 +294,7 @@ class NCAR(SIRT):
     def _check_params(self) -> None:
         super()._check_params()
         p = self.params
-        p["n_layers"] = _check_int(p["n_layers"], "n_layers", 0)
+        p["n_layers"] = as_int(p["n_layers"], "n_layers", 0)
         if p["layer_mode"] not in ("split", "redraw"):
             raise ParameterError(
                 f"layer_mode must be 'split' or 'redraw', got {p['layer_mode']!r}"

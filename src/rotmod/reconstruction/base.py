@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from rotmod._validate import as_int
 from rotmod.errors import ParameterError
 from rotmod.reconstruction.data import ForwardModel, PoissonData, as_data
 from rotmod.reconstruction.stats import chi2, deviance
@@ -31,19 +32,12 @@ __all__ = [
     "Reconstructor",
     "StoppingRule",
     "get_algorithm",
-    "reconstruct",
     "register_algorithm",
 ]
 
 log = logging.getLogger(__name__)
 
 Callback = Callable[["Reconstructor", int], Any]
-
-
-def _check_int(value: Any, name: str, lo: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lo:
-        raise ParameterError(f"{name} must be an integer >= {lo}, got {value!r}")
-    return int(value)
 
 
 def _check_float(value: Any, name: str, lo: float, *, lo_open: bool = True,
@@ -89,8 +83,8 @@ class StoppingRule:
     min_iter: int = 1
 
     def __post_init__(self) -> None:
-        _check_int(self.max_iter, "max_iter", 1)
-        _check_int(self.min_iter, "min_iter", 1)
+        as_int(self.max_iter, "max_iter", 1)
+        as_int(self.min_iter, "min_iter", 1)
         if self.chi2_dof is not None:
             _check_float(self.chi2_dof, "chi2_dof", 0.0)
         if self.rel_tol is not None:
@@ -400,67 +394,3 @@ class Reconstructor(ABC):
             grid=self.grid,
             extras=dict(extras or {}),
         )
-
-
-def reconstruct(
-    response: ResponseOperator,
-    data: Any,
-    method: str = "mlem",
-    *,
-    uncertainty: str | None = None,
-    n_boot: int = 20,
-    redraw: str = "data",
-    seed: Any = None,
-    **params: Any,
-) -> ReconstructionResult:
-    """Reconstruct a sky image in one line.
-
-    Parameters
-    ----------
-    response : ResponseOperator
-    data : PoissonData, FoldedProfiles or ndarray
-        Folded counts (and exposure, background; see :class:`Reconstructor`).
-    method : str
-        ``"backprojection"``, ``"mlem"``, ``"mart"`` or ``"ncar"`` (see ``ALGORITHMS``).
-    uncertainty : {None, "bootstrap"}
-        ``"bootstrap"`` adds a per-pixel one-sigma map from ``n_boot`` reconstructions of
-        Poisson re-draws of the data (same method and parameters).
-    n_boot : int
-        Bootstrap replicas (>= 2).
-    redraw : {"data", "model"}
-        Re-draw from the observed counts (``y* ~ Poisson(y)``) or from the fitted model.
-    seed : None, int or numpy.random.SeedSequence
-        Seeds the bootstrap and, for randomised methods (NCAR), the method.
-    **params
-        Passed to the solver class (stopping rule, callbacks, grid, exposure, background,
-        fit_background and the algorithm's own parameters).
-
-    Returns
-    -------
-    ReconstructionResult
-
-    Raises
-    ------
-    ParameterError
-        Unknown method or parameter, bad data or shapes.
-    """
-    cls = get_algorithm(method)
-    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    own, boot_ss = ss.spawn(2)
-    if "seed" in cls.defaults and "seed" not in params:
-        params["seed"] = own
-    if uncertainty not in (None, "bootstrap"):
-        raise ParameterError(f"uncertainty must be None or 'bootstrap', got {uncertainty!r}")
-    result = cls(response, data, **params).run()
-    if uncertainty == "bootstrap":
-        from rotmod.reconstruction.bootstrap import bootstrap_images
-
-        n_boot = _check_int(n_boot, "n_boot", 2)
-        imgs = bootstrap_images(
-            response, data, cls, n_boot=n_boot, seed=boot_ss, redraw=redraw,
-            model_counts=result.model_counts, **params,
-        )
-        result.uncertainty = imgs.std(axis=0, ddof=1)
-        result.params.update({"uncertainty": "bootstrap", "n_boot": n_boot, "redraw": redraw})
-        result.extras["bootstrap_mean"] = imgs.mean(axis=0)
-    return result

@@ -7,7 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from rotmod._validate import as_int
 from rotmod.errors import ParameterError
+from rotmod.reconstruction.base import get_algorithm
 from rotmod.reconstruction.data import as_data
 
 __all__ = ["bootstrap_images"]
@@ -48,11 +50,8 @@ def bootstrap_images(
     -------
     ndarray, shape (n_boot, ny, nx)
     """
-    from rotmod.reconstruction.base import get_algorithm
-
     cls = get_algorithm(method)
-    if isinstance(n_boot, bool) or not isinstance(n_boot, int | np.integer) or n_boot < 1:
-        raise ParameterError(f"n_boot must be an integer >= 1, got {n_boot!r}")
+    n_boot = as_int(n_boot, "n_boot", 1)
     keys = ("exposure", "background", "fit_background")
     d = as_data(data, **{k: params.pop(k) for k in keys if k in params})
     if redraw == "data":

@@ -4,7 +4,8 @@
 * :func:`build_response` -- compute ``P[d, t, n]`` with any profile model and hold it in
   memory as a :class:`MaterialisedResponse`;
 * :class:`MatrixFreeResponse` -- the same operator computing blocks of ``P`` on the fly;
-* storage in :mod:`rotmod.io.response`.
+* :func:`write_response` / :func:`open_response` -- responses on disk (zarr), computed in
+  blocks (locally or on a Dask cluster, :mod:`rotmod.response.parallel`) and read lazily.
 
 Reconstruction sees only :class:`ResponseOperator` (``forward``, ``adjoint``,
 ``sensitivity``, ``as_linear_operator``).
@@ -14,11 +15,23 @@ from rotmod.response.binning import TimeBinning
 from rotmod.response.materialised import MaterialisedResponse, build_response
 from rotmod.response.matrix_free import MatrixFreeResponse
 from rotmod.response.operator import ResponseOperator
+from rotmod.response.stored import (
+    StoredResponse,
+    load_response,
+    open_response,
+    save_response,
+    write_response,
+)
 
 __all__ = [
     "MaterialisedResponse",
     "MatrixFreeResponse",
     "ResponseOperator",
+    "StoredResponse",
     "TimeBinning",
     "build_response",
+    "load_response",
+    "open_response",
+    "save_response",
+    "write_response",
 ]

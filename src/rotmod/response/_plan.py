@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from rotmod._validate import as_scalar
+from rotmod._validate import as_float_dtype, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray, Instrument
 from rotmod.profiles.base import (
@@ -27,13 +27,6 @@ from rotmod.profiles.base import (
 from rotmod.response.binning import TimeBinning
 
 __all__ = ["ResponsePlan", "make_plan"]
-
-
-def _check_dtype(dtype: Any) -> np.dtype:
-    dt = np.dtype(dtype)
-    if dt not in (np.dtype(np.float32), np.dtype(np.float64)):
-        raise ParameterError(f"dtype must be float32 or float64, got {dt}")
-    return dt
 
 
 def _select_detectors(instrument: Instrument, detectors: Any) -> Instrument:
@@ -156,7 +149,7 @@ def make_plan(
         )
     tb = TimeBinning.coerce(time_bins)
     mdl = get_model(model)
-    dt = _check_dtype(dtype)
+    dt = as_float_dtype(dtype)
     inst = _select_detectors(instrument, detectors)
     e = None if energy is None else as_scalar(energy, "energy", _kev(), lo=0.0, lo_open=True)
     theta, phi = grid.directions()

@@ -190,7 +190,7 @@ def build_response(
     if scheduler is None and client is None and not progress:
         _fill(plan, out)
     else:
-        from rotmod.parallel import compute_blocks
+        from rotmod.response.parallel import compute_blocks
 
         compute_blocks(
             plan, out, scheduler=scheduler, client=client, progress=progress,

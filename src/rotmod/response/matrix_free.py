@@ -77,7 +77,7 @@ class MatrixFreeResponse(ResponseOperator):
         client: Any = None,
         progress: bool = False,
     ) -> None:
-        from rotmod.parallel import block_grid
+        from rotmod.response.parallel import block_grid
 
         self.plan = make_plan(
             instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors
@@ -101,7 +101,7 @@ class MatrixFreeResponse(ResponseOperator):
     def _sweep(
         self, sky: np.ndarray | None, counts: np.ndarray | None
     ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        from rotmod.parallel import map_blocks
+        from rotmod.response.parallel import map_blocks
 
         h = self.n_distinct
         x = None if sky is None else np.ascontiguousarray(sky, dtype=self.dtype)
@@ -159,7 +159,7 @@ class MatrixFreeResponse(ResponseOperator):
 
     def materialise(self) -> MaterialisedResponse:
         """Compute the whole matrix (with this operator's scheduler) and store it in memory."""
-        from rotmod.parallel import compute_blocks
+        from rotmod.response.parallel import compute_blocks
 
         out = np.empty(self.plan.shape, dtype=self.dtype)
         compute_blocks(

@@ -260,7 +260,7 @@ def _finalise(partial: Path, path: Path, overwrite: bool) -> None:
 
 
 def _default_chunks(shape: tuple[int, int, int], itemsize: int) -> tuple[int, int]:
-    from rotmod.parallel import block_grid
+    from rotmod.response.parallel import block_grid
 
     (t0, t1), (n0, n1) = block_grid(shape, None, itemsize=itemsize, target_bytes=16 << 20)[0]
     return (t1 - t0, n1 - n0)
@@ -312,7 +312,7 @@ def write_response(
         Replace an existing store at ``path`` (only once the new one is complete).
     scheduler, client, progress
         Run the chunks on a Dask cluster / show a progress bar; see
-        :func:`rotmod.parallel.map_blocks`.
+        :func:`rotmod.response.parallel.map_blocks`.
     on_chunk : callable, optional
         Called as ``on_chunk(done, total)`` after each chunk is safely on disk (for
         monitoring; an exception raised there interrupts the run, which resumes later).
@@ -333,8 +333,8 @@ def write_response(
     import zarr
 
     import rotmod
-    from rotmod.parallel import _eval_block, block_grid, map_blocks
     from rotmod.response._plan import make_plan
+    from rotmod.response.parallel import _eval_block, block_grid, map_blocks
 
     path = _as_path(path)
     _check_target(path, overwrite)
@@ -415,7 +415,7 @@ def save_response(
     if chunks is None:
         chunks = _default_chunks(shape, np.dtype(response.dtype).itemsize)
     arr = _create(partial, meta, chunks)
-    from rotmod.parallel import block_grid
+    from rotmod.response.parallel import block_grid
 
     dense = response.todense() if hasattr(response, "todense") else None
     for (t0, t1), (n0, n1) in block_grid(shape, chunks):

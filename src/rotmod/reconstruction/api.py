@@ -1,0 +1,81 @@
+"""``reconstruct``: one call from a response and folded counts to an image (and its errors).
+
+It sits above the solvers (:mod:`rotmod.reconstruction.base`, the registry) and the
+bootstrap (:mod:`rotmod.reconstruction.bootstrap`), which both stand on the registry alone.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rotmod._validate import as_int
+from rotmod.errors import ParameterError
+from rotmod.reconstruction.base import ReconstructionResult, get_algorithm
+from rotmod.reconstruction.bootstrap import bootstrap_images
+from rotmod.response.operator import ResponseOperator
+
+__all__ = ["reconstruct"]
+
+
+def reconstruct(
+    response: ResponseOperator,
+    data: Any,
+    method: str = "mlem",
+    *,
+    uncertainty: str | None = None,
+    n_boot: int = 20,
+    redraw: str = "data",
+    seed: Any = None,
+    **params: Any,
+) -> ReconstructionResult:
+    """Reconstruct a sky image in one line.
+
+    Parameters
+    ----------
+    response : ResponseOperator
+    data : PoissonData, FoldedProfiles or ndarray
+        Folded counts (and exposure, background; see :class:`Reconstructor`).
+    method : str
+        ``"backprojection"``, ``"mlem"``, ``"mart"`` or ``"ncar"`` (see ``ALGORITHMS``).
+    uncertainty : {None, "bootstrap"}
+        ``"bootstrap"`` adds a per-pixel one-sigma map from ``n_boot`` reconstructions of
+        Poisson re-draws of the data (same method and parameters).
+    n_boot : int
+        Bootstrap replicas (>= 2).
+    redraw : {"data", "model"}
+        Re-draw from the observed counts (``y* ~ Poisson(y)``) or from the fitted model.
+    seed : None, int or numpy.random.SeedSequence
+        Seeds the bootstrap and, for randomised methods (NCAR), the method.
+    **params
+        Passed to the solver class (stopping rule, callbacks, grid, exposure, background,
+        fit_background and the algorithm's own parameters).
+
+    Returns
+    -------
+    ReconstructionResult
+
+    Raises
+    ------
+    ParameterError
+        Unknown method or parameter, bad data or shapes.
+    """
+    cls = get_algorithm(method)
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    own, boot_ss = ss.spawn(2)
+    if "seed" in cls.defaults and "seed" not in params:
+        params["seed"] = own
+    if uncertainty not in (None, "bootstrap"):
+        raise ParameterError(f"uncertainty must be None or 'bootstrap', got {uncertainty!r}")
+    result = cls(response, data, **params).run()
+    if uncertainty == "bootstrap":
+        n_boot = as_int(n_boot, "n_boot", 2)
+        imgs = bootstrap_images(
+            response, data, cls, n_boot=n_boot, seed=boot_ss, redraw=redraw,
+            model_counts=result.model_counts, **params,
+        )
+        result.uncertainty = imgs.std(axis=0, ddof=1)
+        result.params.update({"uncertainty": "bootstrap", "n_boot": n_boot, "redraw": redraw})
+        result.extras["bootstrap_mean"] = imgs.mean(axis=0)
+    return result

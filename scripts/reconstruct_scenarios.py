@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from rotmod.paper.scenarios import SCENARIOS, make_scenario
 from rotmod.reconstruction import reconstruct
 from rotmod.reconstruction.metrics import evaluate, measure
-from rotmod.paper.scenarios import SCENARIOS, make_scenario
 
 log = logging.getLogger("reconstruct_scenarios")
 

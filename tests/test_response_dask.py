@@ -7,10 +7,10 @@ import pytest
 
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import ParameterError
-from rotmod.response.stored import write_response
 from rotmod.materials import PAPER_SIGMA_662
-from rotmod.response.parallel import get_client
 from rotmod.response import MatrixFreeResponse, build_response
+from rotmod.response.parallel import get_client
+from rotmod.response.stored import write_response
 from rotmod.sky import SkyGrid
 
 distributed = pytest.importorskip("distributed")

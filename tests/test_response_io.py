@@ -7,6 +7,8 @@ import pytest
 
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import InstrumentMismatchError, ParameterError
+from rotmod.materials import PAPER_SIGMA_662
+from rotmod.response import TimeBinning, build_response
 from rotmod.response.stored import (
     StoredResponse,
     load_response,
@@ -14,8 +16,6 @@ from rotmod.response.stored import (
     save_response,
     write_response,
 )
-from rotmod.materials import PAPER_SIGMA_662
-from rotmod.response import TimeBinning, build_response
 from rotmod.sky import SkyGrid
 
 

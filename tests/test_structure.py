@@ -41,7 +41,7 @@ def _imports(path: Path, module: str, *, top_level_only: bool) -> list[tuple[str
         elif isinstance(n, ast.ImportFrom):
             base = n.module or ""
             if n.level:
-                base = ".".join(pkg.split(".")[: len(pkg.split(".")) - n.level + 1] + [base])
+                base = ".".join([*pkg.split(".")[:len(pkg.split(".")) - n.level + 1], base])
             if base.startswith("rotmod"):
                 found += [(f"{base}.{a.name}", n.lineno) for a in n.names]
     return found

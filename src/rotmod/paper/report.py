@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 
 from rotmod._atomic import atomic_dir, atomic_path, write_text
@@ -400,7 +401,7 @@ def _step_summary(out: Path, tmp: Path, log: Callable) -> dict[str, Any]:
         name, d = prof
         models = {m[6:]: d[m] for m in d.files if m.startswith("model_")
                   and m[6:] in ("standard", "advanced", "exact")}
-        plot_profiles(d["xi"], models, mc=d["mc"], mc_error=d["mc_err"], ax=ax0,
+        plot_profiles(d["xi"] * u.rad, models, mc=d["mc"], mc_error=d["mc_err"], ax=ax0,
                       title=f"profile: Monte Carlo vs models, scenario {name}")
     else:
         ax0.text(0.5, 0.5, "profiles step not run", ha="center", transform=ax0.transAxes)

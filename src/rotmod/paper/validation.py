@@ -263,15 +263,6 @@ def run_scenario(
     return res
 
 
-_STYLE = {
-    "standard": {"color": "tab:blue", "ls": "--"},
-    "advanced": {"color": "tab:red", "ls": "-"},
-    "advanced-approx": {"color": "tab:orange", "ls": "-."},
-    "advanced-g0": {"color": "tab:purple", "ls": ":"},
-    "exact": {"color": "k", "ls": "-", "lw": 0.8},
-}
-
-
 def plot_scenario(
     result: ScenarioResult,
     *,
@@ -296,29 +287,16 @@ def plot_scenario(
     -------
     matplotlib.axes.Axes
     """
-    import matplotlib.pyplot as plt
+    from rotmod.plotting.profiles import plot_profiles
 
-    if ax is None:
-        _, ax = plt.subplots(figsize=(7, 3))
-    deg = np.degrees(result.xi)
-    f = result.mc.fraction[detector, :, source]
-    e = result.mc.error[detector, :, source]
-    ax.fill_between(deg, f - e, f + e, color="0.6", lw=0, step="mid", alpha=0.6)
-    ax.plot(deg, f, ".", ms=2.0, color="0.3", label="Monte Carlo")
-    for name in models:
-        if name in result.profiles:
-            ax.plot(
-                deg, result.profiles[name][detector, :, source],
-                label=f"{name} (χ²/dof {result.chi2_dof[name]:.3g})", **_STYLE.get(name, {}),
-            )
     sc = result.scenario
     x0, y0 = sc.detectors[detector]
-    ax.set_title(
-        f"{sc.name}: {sc.title}; det ({x0:g}, {y0:g}) cm, φ = {sc.phi_deg[source]:g}°",
-        fontsize=8,
+    shown = [m for m in models if m in result.profiles]
+    return plot_profiles(
+        result.xi * u.rad, {m: result.profiles[m][detector, :, source] for m in shown},
+        mc=result.mc.fraction[detector, :, source], mc_error=result.mc.error[detector, :, source],
+        labels={m: f"{m} (χ²/dof {result.chi2_dof[m]:.3g})" for m in shown},
+        title=f"{sc.name}: {sc.title}; det ({x0:g}, {y0:g}) cm, φ = {sc.phi_deg[source]:g}°",
+        ax=ax,
     )
-    ax.set_xlabel("mask angle ξ (deg)")
-    ax.set_ylabel("transmitted fraction")
-    ax.set_xlim(0, 360)
-    ax.legend(fontsize=6, loc="upper right", ncol=2)
-    return ax
+

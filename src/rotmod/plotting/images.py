@@ -22,6 +22,7 @@ def plot_image(
     cmap: str = "viridis",
     colorbar: bool = True,
     relative: bool = False,
+    unit: str = "photons s⁻¹ per pixel (one unobstructed detector)",
 ) -> Any:
     """Show a sky image on its grid (tangent-plane degrees) with true sources as crosses.
 
@@ -30,13 +31,15 @@ def plot_image(
     image : ndarray (ny, nx) or ReconstructionResult
     grid : SkyGrid
     sources : (theta, phi), optional
-        True source directions (rad), marked with white ``+``.
+        True source directions (Quantities, or plain numbers in deg), marked with ``+``.
     ax : matplotlib Axes, optional
     title : str, optional
     cmap : str
     colorbar : bool
     relative : bool
         Divide by the image maximum.
+    unit : str
+        Colour-bar label of the image's values (the response's sky units by default).
 
     Returns
     -------
@@ -52,25 +55,26 @@ def plot_image(
     if ax is None:
         _, ax = plt.subplots(figsize=(3, 3))
     ny, nx = grid.shape
-    half = grid.pixel_size / 2
     cx, cy = grid.center
     ext = [
         cx - nx * grid.pixel_size / 2, cx + nx * grid.pixel_size / 2,
         cy - ny * grid.pixel_size / 2, cy + ny * grid.pixel_size / 2,
     ]
-    del half
     im = ax.imshow(img, origin="lower", extent=ext, cmap=cmap, interpolation="nearest")
     if sources is not None:
         x, y = grid.to_tangent(np.atleast_1d(sources[0]), np.atleast_1d(sources[1]))
         ax.plot(x, y, "+", color="w", ms=10, mew=1.5)
         ax.set_xlim(ext[0], ext[1])
         ax.set_ylim(ext[2], ext[3])
-    ax.set_xlabel("x (deg)")
-    ax.set_ylabel("y (deg)")
+    # Gnomonic coordinates of the instrument frame, tan(theta) (cos phi, sin phi) in degrees:
+    # not sky positions (those need the pointing; see rotmod.io.images for the WCS).
+    ax.set_xlabel("tangent-plane x (deg)", fontsize=8)
+    ax.set_ylabel("tangent-plane y (deg)", fontsize=8)
     if title:
         ax.set_title(title, fontsize=9)
     if colorbar:
-        ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        cb = ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        cb.set_label("relative intensity" if relative else unit, fontsize=7)
     return ax
 
 

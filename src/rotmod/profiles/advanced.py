@@ -7,7 +7,7 @@ centred ``s/2`` below the slat centre): a full-thickness core of width ``a' = a 
 transmission ``e^-tau``, between two clip regions of width ``|s|`` whose transmission rises
 exponentially from ``e^-tau`` at the core to 1 at the footprint's edge.  Footprints do not
 overlap because ``b' = b - |s| >= 0``.  In units of the detector diameter ``c``, measured from
-the low edge of the detector disc, the core of slat ``m`` ends at
+the low edge of the detector disc, the core of slat ``m`` ends at ::
 
     x*_m = ((a' + c)/2 - | |x'| mod p - (1 + 2m) p/2 |) / c,    x' = uc + s/2,   p = a + b,
 
@@ -15,7 +15,7 @@ with ``M = floor((a + s_max + c)/p)`` and ``s_max = h tan(theta)``.  At most ``M
 consecutive slats can shadow the disc at once (the paper sums ``2M + 1``), so the code sums
 ``m = m0 .. m0 + M`` from the first slat ``m0`` whose footprint reaches the disc; the other
 terms of the paper's sum are exactly zero.  Then, with ``F0`` the clamped disc-segment fraction
-(:func:`rotmod.profiles.standard.segment_fraction`),
+(:func:`rotmod.profiles.standard.segment_fraction`), ::
 
     G0_m = (1 - e^-tau) [F0(x*_m + |s|/c) - F0(x*_m - a'/c - |s|/c)]
     G1_m = e^-tau [F1(x*_m) + F1(1 - x*_m + a'/c)]

@@ -1,7 +1,7 @@
 """The standard characteristic profile (the seed paper's Sec. 2; Durouchoux et al. 1983).
 
 For ``a = b = c`` and thin slats the detector disc (diameter ``a``) always overlaps exactly
-one slat, from one side, by a fraction ``x*`` of its diameter,
+one slat, from one side, by a fraction ``x*`` of its diameter, ::
 
     x* = 1 - | |uc / a| mod 2 - 1 |,        P = 1 - (1 - T) F(x*),
 

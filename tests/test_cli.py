@@ -112,7 +112,7 @@ def test_design_writes_table_and_plot(capsys, tmp_path) -> None:
         (["profile", "-i", "nosuchpreset", "-s", "1,1", "-o", "{tmp}/x.csv"],
          "neither an existing file nor a preset"),
         (["profile", "-i", "{tmp}/bad.toml", "-s", "1,1", "-o", "{tmp}/x.csv"],
-         r"mask.slat_width: must be > 0 cm, got -4 cm"),
+         r"mask.slat_width: must be >= 0 cm, got -4 cm"),
         (["fold", "{tmp}/missing.fits", "-o", "{tmp}/f.fits"], "does not exist"),
         (["fold", "{tmp}/garbage.fits", "-o", "{tmp}/f.fits"], ""),
         (["profile", "-i", "paper", "-s", "1,1", "-o", "{tmp}/nodir/x.csv"], "does not exist"),

@@ -32,9 +32,16 @@ def _strip(value: Any, unit: u.UnitBase | None, name: str) -> np.ndarray:
         raise ParameterError(f"{name} must be numeric, got {value!r}") from exc
 
 
+def _unit_text(unit: u.UnitBase | None) -> str:
+    """`` cm``, `` 1/cm``, `` g/cm3``: how the unit is written in files and on the CLI."""
+    if unit in (None, u.dimensionless_unscaled):
+        return ""
+    return " " + u.Unit(unit).to_string().replace(" / ", "/").replace(" ", "")
+
+
 def _describe(arr: np.ndarray, unit: u.UnitBase | None) -> str:
     bad = arr.ravel()[0] if arr.size else arr
-    return f"{bad:g}{' ' + str(unit) if unit not in (None, u.dimensionless_unscaled) else ''}"
+    return f"{bad:g}{_unit_text(unit)}"
 
 
 def as_array(
@@ -81,7 +88,7 @@ def as_array(
     if not np.all(np.isfinite(arr)):
         bad = arr[~np.isfinite(arr)]
         raise ParameterError(f"{name} must be finite, got {_describe(bad, unit)}")
-    ustr = f" {unit}" if unit not in (None, u.dimensionless_unscaled) else ""
+    ustr = _unit_text(unit)
     if lo is not None:
         bad = arr <= lo if lo_open else arr < lo
         if np.any(bad):

@@ -17,7 +17,7 @@ written as strings and parsed by `astropy.units`::
 
     [material]
     name = "lead"
-    density = "11.34 g/cm3"
+    # density = "11.34 g/cm3"            # optional for elements: the database's value
     # mass_attenuation = "0.103 cm2/g"   # optional: fixed at every energy
 
     [detectors]
@@ -27,11 +27,16 @@ written as strings and parsed by `astropy.units`::
     y0 = "0 cm"
     # hexagonal: rings = 2, pitch = "3.99 cm"
 
-Every value is checked on load; an error names the key, the value and the rule
-(``mask.slat_width: must be > 0 cm, got -4 cm``) and unknown keys are refused with the
-closest allowed spelling suggested.  The typed form (:class:`InstrumentConfig` and its parts)
-converts to a :class:`~rotmod.geometry.Instrument` and writes back to a file that loads to an
-equal configuration.
+The tables are the :class:`~rotmod.geometry.Mask`, :class:`~rotmod.materials.Material` and
+:class:`~rotmod.geometry.Instrument` dataclasses written with units: their fields (and the unit
+of each, from the field's ``metadata``) are the file's keys.  Reading converts the strings to
+Quantities and builds the :class:`~rotmod.geometry.Instrument` directly, so each value is
+validated once, by the model; an error names the key, the value and the rule
+(``mask.slat_width: must be >= 0 cm, got -4 cm``) and unknown keys are refused with the
+closest allowed spelling suggested.  :class:`InstrumentConfig` is that instrument plus what
+only a file carries (energies of interest, name, description); it writes back (in cm, s,
+keV; detectors as a single position or a list) to a file that loads to an equal
+configuration.
 
 Presets ship with the package (``rotmod/presets/*.toml``): ``paper`` and ``prototype``;
 :func:`load_instrument` accepts a preset name or a path.
@@ -39,9 +44,11 @@ Presets ship with the package (``rotmod/presets/*.toml``): ``paper`` and ``proto
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import os
+import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -57,10 +64,7 @@ from rotmod.errors import ParameterError, RotmodError
 
 __all__ = [
     "ConfigError",
-    "DetectorsConfig",
     "InstrumentConfig",
-    "MaskConfig",
-    "MaterialConfig",
     "list_presets",
     "load_instrument",
     "load_instrument_config",
@@ -94,7 +98,9 @@ def _fmt_q(q: u.Quantity) -> str:
     return f"{text} {unit}".strip() if unit else text
 
 
-def parse_quantity(value: Any, key: str, unit: u.UnitBase | str, what: str) -> u.Quantity:
+def parse_quantity(
+    value: Any, key: str, unit: u.UnitBase | str, what: str, *, allow_inf: bool = False
+) -> u.Quantity:
     """Parse ``value`` (a string such as ``"4 cm"`` or a Quantity) as a quantity of ``unit``.
 
     Parameters
@@ -107,6 +113,8 @@ def parse_quantity(value: Any, key: str, unit: u.UnitBase | str, what: str) -> u
         Any unit of the required physical type (``"cm"``).
     what : str
         The physical type in words (``"a length"``).
+    allow_inf : bool
+        Accept ``+inf`` (an opaque mask's ``mu = "inf 1/cm"``).
 
     Returns
     -------
@@ -152,7 +160,7 @@ def parse_quantity(value: Any, key: str, unit: u.UnitBase | str, what: str) -> u
         raise ConfigError(
             f"{key}: must be {what} (convertible to {target.to_string()}), got {value!r}"
         )
-    if not np.isfinite(q.value):
+    if not np.isfinite(q.value) and not (allow_inf and np.isposinf(q.value)):
         raise ConfigError(f"{key}: must be finite, got {value!r}")
     return q
 
@@ -209,274 +217,159 @@ def _q_equal(x: u.Quantity | None, y: u.Quantity | None) -> bool:
 
 
 # --------------------------------------------------------------------------- sections
+#
+# A file section is the dataclass of the model it describes: its keys and their units come from
+# the dataclass fields (``field(metadata={"unit": ...})``), the values are converted to
+# Quantities here and validated once, by the model's own constructor.
 
 
-@dataclass(frozen=True, eq=False)
-class MaterialConfig:
-    """Slat material: a name (element, formula or common name), density, optional sigma.
+def _unit_fields(cls: type) -> list[tuple[str, str]]:
+    return [(f.name, f.metadata["unit"]) for f in dataclasses.fields(cls) if "unit" in f.metadata]
 
-    Parameters
-    ----------
-    name : str
-        ``"lead"``, ``"Pb"``, ``"W"``, ``"CdZnTe"``...
-    density : Quantity, optional
-        g/cm3 (or any density unit); default the database value for elements.
-    mass_attenuation : Quantity, optional
-        A constant mass attenuation coefficient (cm2/g) used at every energy instead of the
-        NIST XCOM tables.
-    """
 
-    name: str = "lead"
-    density: u.Quantity | None = None
-    mass_attenuation: u.Quantity | None = None
+def _model_error(exc: RotmodError) -> ConfigError:
+    """A model's ParameterError (``mask.slat_width must be ...``) in the file's key style."""
+    msg = re.sub(r"^instrument\.", "", str(exc))
+    return ConfigError(re.sub(r"^([A-Za-z_.\[\]0-9]+) must ", r"\1: must ", msg))
 
-    KEYS = ("name", "density", "mass_attenuation")
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], section: str = "material") -> MaterialConfig:
-        """Validate and build from a file's table."""
-        _check_keys(d, cls.KEYS, section)
-        name = d.get("name", "lead")
-        if not isinstance(name, str) or not name.strip():
-            raise ConfigError(f"{section}.name: must be a non-empty string, got {name!r}")
-        rho = _quantity(d, "density", section, "g/cm3", "a density", required=False)
-        sig = _quantity(
-            d, "mass_attenuation", section, "cm2/g", "a mass attenuation coefficient",
-            strict=False, required=False,
+def _read_fields(d: dict[str, Any], cls: type, section: str, *, extra: tuple[str, ...] = (),
+                 required: tuple[str, ...] = ()) -> dict[str, u.Quantity]:
+    """Parse the unit-carrying fields of ``cls`` present in ``d`` (``required`` must be)."""
+    fields = _unit_fields(cls)
+    _check_keys(d, tuple(n for n, _ in fields) + extra, section)
+    out = {}
+    for name, unit in fields:
+        key = f"{section}.{name}" if section else name
+        if name not in d:
+            if name in required:
+                raise ConfigError(f"{key}: is required (e.g. '1 {unit}'), but it is missing")
+            continue
+        out[name] = parse_quantity(d[name], key, unit, _WHAT.get(unit, f"a value in {unit}"),
+                                   allow_inf=name == "mu")
+    return out
+
+
+def _write_fields(obj: Any, *, skip_none: bool = True) -> dict[str, Any]:
+    out = {}
+    for name, unit in _unit_fields(type(obj)):
+        v = getattr(obj, name)
+        if v is None and skip_none:
+            continue
+        out[name] = _fmt_q(float(v) * u.Unit(unit))
+    return out
+
+
+_WHAT = {
+    "cm": "a length", "s": "a time", "keV": "an energy", "1/cm": "a linear attenuation "
+    "coefficient", "g/cm3": "a density", "cm2/g": "a mass attenuation coefficient",
+}
+
+
+def _material(d: Any) -> Any:
+    from rotmod.errors import MaterialError
+    from rotmod.materials import Material
+
+    _check_keys(d, ("name", *(n for n, _ in _unit_fields(Material))), "material")
+    q = _read_fields({k: v for k, v in d.items() if k != "name"}, Material, "material")
+    try:
+        return Material(d.get("name", "lead"), **q)
+    except MaterialError as exc:
+        if str(exc).startswith("material."):
+            raise
+        raise ConfigError(f"material.name: {exc}") from exc
+
+
+def _mask(d: Any, material: Any) -> Any:
+    from rotmod.geometry import Mask
+
+    q = _read_fields(d, Mask, "mask", required=("slat_width", "slat_gap", "thickness", "height"))
+    return Mask(material=material, **q)
+
+
+def _detectors(d: Any) -> Any:
+    from rotmod.geometry import DetectorArray
+
+    section = "detectors"
+    _check_keys(d, _DETECTOR_KEYS, section)
+    layout = d.get("layout", "single")
+    if layout not in _LAYOUTS:
+        close = difflib.get_close_matches(str(layout), _LAYOUTS, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ConfigError(
+            f"{section}.layout: must be one of {', '.join(_LAYOUTS)}, got {layout!r}{hint}"
         )
-        cfg = cls(name, rho, sig)
-        cfg.to_material(section)  # unknown material names fail here, at load
-        return cfg
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain strings for a file."""
-        out: dict[str, Any] = {"name": self.name}
-        if self.density is not None:
-            out["density"] = _fmt_q(self.density)
-        if self.mass_attenuation is not None:
-            out["mass_attenuation"] = _fmt_q(self.mass_attenuation)
-        return out
-
-    def to_material(self, section: str = "material") -> Any:
-        """The :class:`~rotmod.materials.Material`."""
-        from rotmod.materials import Material
-
-        try:
-            return Material(
-                self.name,
-                density=None if self.density is None else self.density.to_value("g/cm3"),
-                mass_attenuation=None
-                if self.mass_attenuation is None
-                else self.mass_attenuation.to_value("cm2/g"),
-            )
-        except RotmodError as exc:
-            raise ConfigError(f"{section}.name: {exc}") from exc
-
-    def __eq__(self, other: object) -> bool:
-        return (
-            isinstance(other, MaterialConfig)
-            and self.name == other.name
-            and _q_equal(self.density, other.density)
-            and _q_equal(self.mass_attenuation, other.mass_attenuation)
+    allowed = _PER_LAYOUT[layout]
+    extra = [k for k in d if k not in allowed]
+    if extra:
+        raise ConfigError(
+            f"{section}: key{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))} "
+            f"not used by layout {layout!r}; that layout takes {', '.join(allowed)}"
         )
+    c = _quantity(d, "diameter", section, "cm", "a length", lo=-math.inf)
 
-    __hash__ = None  # type: ignore[assignment]
+    def length(name: str) -> u.Quantity | None:
+        return _quantity(d, name, section, "cm", "a length", lo=-math.inf, required=False)
 
-
-@dataclass(frozen=True, eq=False)
-class MaskConfig:
-    """Slat mask: ``a`` (slat_width), ``b`` (slat_gap), ``h`` (thickness), ``L`` (height).
-
-    ``mu`` optionally fixes the linear attenuation coefficient (1/cm) at every energy.
-    """
-
-    slat_width: u.Quantity
-    slat_gap: u.Quantity
-    thickness: u.Quantity
-    height: u.Quantity
-    mu: u.Quantity | None = None
-
-    KEYS = ("slat_width", "slat_gap", "thickness", "height", "mu")
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], section: str = "mask") -> MaskConfig:
-        """Validate and build from a file's table."""
-        _check_keys(d, cls.KEYS, section)
-        a = _quantity(d, "slat_width", section, "cm", "a length")
-        b = _quantity(d, "slat_gap", section, "cm", "a length")
-        h = _quantity(d, "thickness", section, "cm", "a length", strict=False)
-        L = _quantity(d, "height", section, "cm", "a length")
-        mu = _quantity(
-            d, "mu", section, "1/cm", "a linear attenuation coefficient", strict=False,
-            required=False,
-        )
-        return cls(a, b, h, L, mu)  # type: ignore[arg-type]
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain strings for a file."""
-        out = {k: _fmt_q(getattr(self, k)) for k in self.KEYS[:4]}
-        if self.mu is not None:
-            out["mu"] = _fmt_q(self.mu)
-        return out
-
-    def __eq__(self, other: object) -> bool:
-        return isinstance(other, MaskConfig) and all(
-            _q_equal(getattr(self, k), getattr(other, k)) for k in self.KEYS
-        )
-
-    __hash__ = None  # type: ignore[assignment]
-
-
-@dataclass(frozen=True, eq=False)
-class DetectorsConfig:
-    """Detector faces: a ``single`` one, an explicit ``list`` or a ``hexagonal`` array.
-
-    Parameters
-    ----------
-    layout : {"single", "list", "hexagonal"}
-    diameter : Quantity
-        ``c``, the diameter of every detector face.
-    x0, y0 : Quantity
-        Centre of a ``single`` detector (default on axis).
-    positions : tuple of (Quantity, Quantity)
-        Centres for ``list``.
-    rings : int
-        Hexagonal rings around the central detector (2 gives 19 detectors).
-    pitch : Quantity, optional
-        Centre-to-centre distance of a hexagonal array (default 1.05 diameter).
-    """
-
-    layout: str
-    diameter: u.Quantity
-    x0: u.Quantity = field(default_factory=lambda: 0.0 * u.cm)
-    y0: u.Quantity = field(default_factory=lambda: 0.0 * u.cm)
-    positions: tuple[tuple[u.Quantity, u.Quantity], ...] = ()
-    rings: int = 2
-    pitch: u.Quantity | None = None
-
-    KEYS = ("layout", "diameter", "x0", "y0", "positions", "rings", "pitch")
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], section: str = "detectors") -> DetectorsConfig:
-        """Validate and build from a file's table."""
-        _check_keys(d, cls.KEYS, section)
-        layout = d.get("layout", "single")
-        if layout not in _LAYOUTS:
-            close = difflib.get_close_matches(str(layout), _LAYOUTS, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
+    if layout == "single":
+        x0, y0 = length("x0"), length("y0")
+        return DetectorArray.single(c, 0.0 if x0 is None else x0, 0.0 if y0 is None else y0)
+    if layout == "list":
+        pos = d.get("positions")
+        key = f"{section}.positions"
+        if not isinstance(pos, list) or not pos:
             raise ConfigError(
-                f"{section}.layout: must be one of {', '.join(_LAYOUTS)}, got {layout!r}{hint}"
+                f"{key}: must be a non-empty list of [x, y] pairs like "
+                f"[['0 cm', '0 cm'], ['8 cm', '0 cm']], got {pos!r}"
             )
-        allowed = _PER_LAYOUT[layout]
-        extra = [k for k in d if k not in allowed]
-        if extra:
-            raise ConfigError(
-                f"{section}: key{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))} "
-                f"not used by layout {layout!r}; that layout takes {', '.join(allowed)}"
-            )
-        c = _quantity(d, "diameter", section, "cm", "a length")
-        if layout == "single":
-            x0 = _quantity(d, "x0", section, "cm", "a length", lo=-math.inf, required=False)
-            y0 = _quantity(d, "y0", section, "cm", "a length", lo=-math.inf, required=False)
-            return cls(layout, c, 0.0 * u.cm if x0 is None else x0,  # type: ignore[arg-type]
-                       0.0 * u.cm if y0 is None else y0)
-        if layout == "list":
-            pos = d.get("positions")
-            key = f"{section}.positions"
-            if not isinstance(pos, list) or not pos:
+        xy = []
+        for i, p in enumerate(pos):
+            if not isinstance(p, list | tuple) or len(p) != 2:
+                raise ConfigError(f"{key}[{i}]: must be an [x, y] pair, got {p!r}")
+            xy.append([parse_quantity(v, f"{key}[{i}][{j}]", "cm", "a length").to_value(u.cm)
+                       for j, v in enumerate(p)])
+        xy_arr = np.array(xy)
+        if len(xy_arr) > 1:
+            # A built instrument's faces cannot overlap (two at one position would count the
+            # same photons twice).  The model class allows it: virtual probe positions in
+            # validation studies may overlap.
+            gap = np.hypot(*(xy_arr[:, None, :] - xy_arr[None, :, :]).transpose(2, 0, 1))
+            np.fill_diagonal(gap, np.inf)
+            i, j = np.unravel_index(int(np.argmin(gap)), gap.shape)
+            if gap[i, j] < c.to_value(u.cm) * (1 - 1e-12):
                 raise ConfigError(
-                    f"{key}: must be a non-empty list of [x, y] pairs like "
-                    f"[['0 cm', '0 cm'], ['8 cm', '0 cm']], got {pos!r}"
+                    f"{key}: detectors {min(i, j)} and {max(i, j)} overlap (centres "
+                    f"{gap[i, j]:g} cm apart, less than the diameter {_fmt_q(c)})"
                 )
-            out = []
-            for i, p in enumerate(pos):
-                if not isinstance(p, list | tuple) or len(p) != 2:
-                    raise ConfigError(f"{key}[{i}]: must be an [x, y] pair, got {p!r}")
-                out.append(tuple(
-                    parse_quantity(v, f"{key}[{i}][{j}]", "cm", "a length")
-                    for j, v in enumerate(p)
-                ))
-            return cls(layout, c, positions=tuple(out))  # type: ignore[arg-type]
-        rings = d.get("rings", 2)
-        if isinstance(rings, bool) or not isinstance(rings, int) or rings < 0:
-            raise ConfigError(f"{section}.rings: must be an integer >= 0, got {rings!r}")
-        pitch = _quantity(d, "pitch", section, "cm", "a length", required=False)
-        if pitch is not None and pitch < c:
-            raise ConfigError(
-                f"{section}.pitch: must be >= {section}.diameter ({_fmt_q(c)}) so faces do "
-                f"not overlap, got {d['pitch']}"
-            )
-        return cls(layout, c, rings=rings, pitch=pitch)  # type: ignore[arg-type]
+        return DetectorArray(xy_arr, c)
+    rings = d.get("rings", 2)
+    if isinstance(rings, bool) or not isinstance(rings, int):
+        raise ConfigError(f"{section}.rings: must be an integer >= 0, got {rings!r}")
+    return DetectorArray.hexagonal(c, rings=rings, pitch=length("pitch"))
 
-    def to_dict(self) -> dict[str, Any]:
-        """Plain values for a file (only the keys of the layout)."""
-        out: dict[str, Any] = {"layout": self.layout, "diameter": _fmt_q(self.diameter)}
-        if self.layout == "single":
-            out["x0"] = _fmt_q(self.x0)
-            out["y0"] = _fmt_q(self.y0)
-        elif self.layout == "list":
-            out["positions"] = [[_fmt_q(x), _fmt_q(y)] for x, y in self.positions]
-        else:
-            out["rings"] = self.rings
-            if self.pitch is not None:
-                out["pitch"] = _fmt_q(self.pitch)
-        return out
 
-    def to_detectors(self) -> Any:
-        """The :class:`~rotmod.geometry.DetectorArray`."""
-        from rotmod.geometry import DetectorArray
-
-        c = self.diameter.to_value(u.cm)
-        if self.layout == "single":
-            return DetectorArray.single(c, self.x0.to_value(u.cm), self.y0.to_value(u.cm))
-        if self.layout == "list":
-            pos = np.array([[x.to_value(u.cm), y.to_value(u.cm)] for x, y in self.positions])
-            return DetectorArray(pos, c)
-        pitch = None if self.pitch is None else self.pitch.to_value(u.cm)
-        return DetectorArray.hexagonal(c, rings=self.rings, pitch=pitch)
-
-    def __eq__(self, other: object) -> bool:
-        if not isinstance(other, DetectorsConfig):
-            return False
-        return self.to_dict() == other.to_dict() or (
-            self.layout == other.layout
-            and self.rings == other.rings
-            and _q_equal(self.diameter, other.diameter)
-            and _q_equal(self.x0, other.x0)
-            and _q_equal(self.y0, other.y0)
-            and _q_equal(self.pitch, other.pitch)
-            and len(self.positions) == len(other.positions)
-            and all(
-                _q_equal(p, q)
-                for pp, qq in zip(self.positions, other.positions, strict=True)
-                for p, q in zip(pp, qq, strict=True)
-            )
-        )
-
-    __hash__ = None  # type: ignore[assignment]
+_DETECTOR_KEYS = ("layout", "diameter", "x0", "y0", "positions", "rings", "pitch")
 
 
 @dataclass(frozen=True, eq=False)
 class InstrumentConfig:
-    """A complete instrument description (see the module notes for the file layout).
+    """An :class:`~rotmod.geometry.Instrument` with what a file adds: energies, name, text.
+
+    The file's ``[mask]``, ``[material]`` and ``[detectors]`` tables are the instrument's
+    dataclasses written with units (see the module notes); reading builds the
+    :class:`~rotmod.geometry.Instrument` directly, so every value is validated once, by the
+    model, and writing needs nothing but the instrument.
 
     Parameters
     ----------
-    mask : MaskConfig
-    material : MaterialConfig
-    detectors : DetectorsConfig
-    rotation_period : Quantity
-        One full mask turn (time).
+    instrument : Instrument
     energies : tuple of Quantity
         Photon energies of interest (the first is the default of the CLI commands).
     name, description : str
         Free text.
     """
 
-    mask: MaskConfig
-    material: MaterialConfig
-    detectors: DetectorsConfig
-    rotation_period: u.Quantity = field(default_factory=lambda: 60.0 * u.s)
+    instrument: Any
     energies: tuple[u.Quantity, ...] = field(default_factory=lambda: (662.0 * u.keV,))
     name: str = ""
     description: str = ""
@@ -489,13 +382,15 @@ class InstrumentConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> InstrumentConfig:
-        """Validate a parsed file and build the typed configuration.
+        """Validate a parsed file and build the configuration.
 
         Raises
         ------
         ConfigError
             A missing section or key, an unknown key, or a value that breaks its rule.
         """
+        from rotmod.geometry import Instrument
+
         _check_keys(d, cls.KEYS, "")
         for sec in ("mask", "detectors"):
             if sec not in d:
@@ -503,10 +398,6 @@ class InstrumentConfig:
         for k in ("name", "description"):
             if k in d and not isinstance(d[k], str):
                 raise ConfigError(f"{k}: must be a string, got {d[k]!r}")
-        mask = MaskConfig.from_dict(d["mask"])
-        material = MaterialConfig.from_dict(d.get("material", {}))
-        det = DetectorsConfig.from_dict(d["detectors"])
-        period = _quantity(d, "rotation_period", "", "s", "a time", required=False)
         energies_raw = d.get("energies", ["662 keV"])
         if isinstance(energies_raw, str):
             energies_raw = [energies_raw]
@@ -520,16 +411,23 @@ class InstrumentConfig:
             q = parse_quantity(e, f"energies[{i}]", "keV", "an energy")
             _check_bound(q, f"energies[{i}]", "keV", lo=0.0, strict=True, original=e)
             energies.append(q)
-        cfg = cls(
-            mask, material, det, 60.0 * u.s if period is None else period, tuple(energies),
-            d.get("name", ""), d.get("description", ""),
-        )
+        top = {k: d[k] for k in ("rotation_period",) if k in d}
+        try:
+            inst = Instrument(
+                _mask(d["mask"], _material(d.get("material", {}))), _detectors(d["detectors"]),
+                **_read_fields(top, Instrument, ""),
+            )
+        except ConfigError:
+            raise
+        except RotmodError as exc:
+            raise _model_error(exc) from exc
+        cfg = cls(inst, tuple(energies), d.get("name", ""), d.get("description", ""))
         cfg._check_energies()
-        cfg.to_instrument()  # cross-checks of the geometry classes, reported as ConfigError
         return cfg
 
     def _check_energies(self) -> None:
-        if self.mask.mu is not None or self.material.mass_attenuation is not None:
+        m = self.instrument.mask
+        if m.mu is not None or m.material.mass_attenuation is not None:
             return
         from rotmod.materials import DATABASE_RANGE_KEV
 
@@ -559,6 +457,10 @@ class InstrumentConfig:
             raise ConfigError(
                 f"instrument file {str(p)!r}: cannot be read ({exc.strerror})"
             ) from exc
+        except UnicodeDecodeError as exc:
+            raise ConfigError(
+                f"instrument file {str(p)!r}: is not a text file (TOML or YAML expected)"
+            ) from exc
         try:
             if p.suffix.lower() in (".yaml", ".yml"):
                 yaml = optional_import("yaml", "yaml", "YAML instrument files")
@@ -576,17 +478,27 @@ class InstrumentConfig:
     # ---------------------------------------------------------------- writing
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain strings, numbers and tables (the file's content)."""
+        """The file's content: the instrument's fields as strings with units."""
+        inst = self.instrument
+        m, mat, det = inst.mask, inst.mask.material, inst.detectors
         out: dict[str, Any] = {}
         if self.name:
             out["name"] = self.name
         if self.description:
             out["description"] = self.description
-        out["rotation_period"] = _fmt_q(self.rotation_period)
+        out.update(_write_fields(inst))
         out["energies"] = [_fmt_q(e) for e in self.energies]
-        out["mask"] = self.mask.to_dict()
-        out["material"] = self.material.to_dict()
-        out["detectors"] = self.detectors.to_dict()
+        out["mask"] = _write_fields(m)
+        out["material"] = {"name": mat.name, **_write_fields(mat)}
+        if len(det) == 1:
+            x, y = det.positions[0]
+            out["detectors"] = {"layout": "single", "diameter": _fmt_q(det.diameter * u.cm),
+                                "x0": _fmt_q(x * u.cm), "y0": _fmt_q(y * u.cm)}
+        else:
+            out["detectors"] = {
+                "layout": "list", "diameter": _fmt_q(det.diameter * u.cm),
+                "positions": [[_fmt_q(x * u.cm), _fmt_q(y * u.cm)] for x, y in det.positions],
+            }
         return out
 
     def to_toml(self) -> str:
@@ -611,22 +523,7 @@ class InstrumentConfig:
 
     def to_instrument(self) -> Any:
         """The :class:`~rotmod.geometry.Instrument` this file describes."""
-        from rotmod.geometry import Instrument, Mask
-
-        m = self.mask
-        try:
-            mask = Mask(
-                m.slat_width.to_value(u.cm), m.slat_gap.to_value(u.cm),
-                m.thickness.to_value(u.cm), m.height.to_value(u.cm),
-                self.material.to_material(),
-                None if m.mu is None else m.mu.to_value(1 / u.cm),
-            )
-            return Instrument(mask, self.detectors.to_detectors(),
-                              self.rotation_period.to_value(u.s))
-        except ConfigError:
-            raise
-        except RotmodError as exc:
-            raise ConfigError(str(exc)) from exc
+        return self.instrument
 
     @property
     def energies_kev(self) -> np.ndarray:
@@ -634,18 +531,13 @@ class InstrumentConfig:
         return np.array([e.to_value(u.keV) for e in self.energies])
 
     def replace(self, **changes: Any) -> InstrumentConfig:
-        """A copy with top-level fields replaced (sections are replaced whole)."""
-        from dataclasses import replace
-
-        return replace(self, **changes)
+        """A copy with fields replaced."""
+        return dataclasses.replace(self, **changes)
 
     def __eq__(self, other: object) -> bool:
         return (
             isinstance(other, InstrumentConfig)
-            and self.mask == other.mask
-            and self.material == other.material
-            and self.detectors == other.detectors
-            and _q_equal(self.rotation_period, other.rotation_period)
+            and self.instrument == other.instrument
             and len(self.energies) == len(other.energies)
             and all(_q_equal(x, y) for x, y in zip(self.energies, other.energies, strict=True))
             and self.name == other.name
@@ -710,7 +602,7 @@ def load_instrument_config(source: str | os.PathLike | InstrumentConfig) -> Inst
 
 def load_instrument(source: str | os.PathLike | InstrumentConfig) -> Any:
     """The :class:`~rotmod.geometry.Instrument` of a file path or preset name."""
-    return load_instrument_config(source).to_instrument()
+    return load_instrument_config(source).instrument
 
 
 # --------------------------------------------------------------------------- small TOML writer

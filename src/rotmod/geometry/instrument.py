@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import astropy.units as u
@@ -34,7 +34,7 @@ class Instrument:
 
     mask: Mask
     detectors: DetectorArray
-    rotation_period: float = 60.0
+    rotation_period: float = field(default=60.0, metadata={"unit": "s"})
 
     def __post_init__(self) -> None:
         if not isinstance(self.mask, Mask):

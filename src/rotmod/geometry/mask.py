@@ -41,12 +41,15 @@ class Mask:
     slats occupy ``b/2 + k(a+b) <= u <= b/2 + a + k(a+b)`` in the mask coordinate ``u``.
     """
 
-    slat_width: float
-    slat_gap: float
-    thickness: float
-    height: float
-    material: Material = field(default_factory=lambda: Material("Pb"))
-    mu: float | None = None
+    # ``unit`` metadata: the unit a plain number means and the unit instrument files write
+    # (rotmod.config derives the file schema from these fields).
+    slat_width: float = field(metadata={"unit": "cm"})
+    slat_gap: float = field(metadata={"unit": "cm"})
+    thickness: float = field(metadata={"unit": "cm"})
+    height: float = field(metadata={"unit": "cm"})
+    material: Material = field(default_factory=lambda: Material("Pb"),
+                               metadata={"section": "material"})
+    mu: float | None = field(default=None, metadata={"unit": "1/cm"})
 
     def __post_init__(self) -> None:
         cm = u.cm
@@ -69,8 +72,11 @@ class Mask:
             raise ParameterError(f"mask.material must be a Material or a name, got {mat!r}")
         object.__setattr__(self, "material", mat)
         if self.mu is not None:
-            mu = float(self.mu) if not isinstance(self.mu, u.Quantity) else self.mu
-            if isinstance(mu, float) and np.isposinf(mu):
+            mu = self.mu
+            q = isinstance(mu, u.Quantity) and mu.unit.is_equivalent(1 / cm)
+            opaque = np.isposinf(mu.to_value(1 / cm) if q else mu) if q or isinstance(
+                mu, int | float | np.floating) else False
+            if opaque:  # +inf: perfectly opaque slats (as_scalar refuses non-finite values)
                 object.__setattr__(self, "mu", np.inf)
             else:
                 object.__setattr__(self, "mu", as_scalar(mu, "mask.mu", 1 / cm, lo=0.0))

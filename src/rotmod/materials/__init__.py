@@ -22,7 +22,7 @@ linear coefficient, which override the database (the seed paper's scenarios use
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -183,8 +183,8 @@ class Material:
     """
 
     name: str
-    density: float | None = None
-    mass_attenuation: float | None = None
+    density: float | None = field(default=None, metadata={"unit": "g/cm3"})
+    mass_attenuation: float | None = field(default=None, metadata={"unit": "cm2/g"})
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():

@@ -53,7 +53,7 @@ import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import astropy.units as u
 import numpy as np
@@ -61,6 +61,9 @@ import numpy as np
 from rotmod._atomic import write_text
 from rotmod._deps import optional_import
 from rotmod.errors import ParameterError, RotmodError
+
+if TYPE_CHECKING:
+    from rotmod.geometry import Instrument
 
 __all__ = [
     "ConfigError",
@@ -521,7 +524,7 @@ class InstrumentConfig:
 
     # ---------------------------------------------------------------- use
 
-    def to_instrument(self) -> Any:
+    def to_instrument(self) -> Instrument:
         """The :class:`~rotmod.geometry.Instrument` this file describes."""
         return self.instrument
 
@@ -600,7 +603,7 @@ def load_instrument_config(source: str | os.PathLike | InstrumentConfig) -> Inst
     )
 
 
-def load_instrument(source: str | os.PathLike | InstrumentConfig) -> Any:
+def load_instrument(source: str | os.PathLike | InstrumentConfig) -> Instrument:
     """The :class:`~rotmod.geometry.Instrument` of a file path or preset name."""
     return load_instrument_config(source).instrument
 

@@ -28,13 +28,16 @@ from __future__ import annotations
 import itertools
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import astropy.units as u
 import numpy as np
 
 from rotmod._validate import as_array, as_int, as_scalar
 from rotmod.errors import ModelValidityError, ParameterError
+
+if TYPE_CHECKING:
+    from astropy.table import Table
 
 __all__ = ["DesignScan", "pareto_front", "scan_designs"]
 
@@ -165,7 +168,7 @@ class DesignScan:
         s = np.where(ok, self.scores(weights), -np.inf)
         return int(np.argmax(s))
 
-    def to_table(self, weights: Any = (1.0, 1.0, 1.0)) -> Any:
+    def to_table(self, weights: Any = (1.0, 1.0, 1.0)) -> Table:
         """An `astropy.table.Table` with units, the Pareto flag, scores and settings in meta."""
         from astropy.table import Table
 

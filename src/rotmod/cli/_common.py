@@ -7,12 +7,15 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rotmod._atomic import atomic_path
 from rotmod.errors import RotmodError
+
+if TYPE_CHECKING:
+    from rotmod.config import InstrumentConfig
 
 
 class UserError(RotmodError):
@@ -88,7 +91,7 @@ def add_output(p: argparse.ArgumentParser, *, required: bool = True, help: str =
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
 
 
-def load_config(args: argparse.Namespace) -> Any:
+def load_config(args: argparse.Namespace) -> InstrumentConfig:
     from rotmod.config import load_instrument_config
 
     return load_instrument_config(args.instrument)

@@ -10,12 +10,15 @@ slat boxes) is independent of every profile model used for reconstruction.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import astropy.units as u
 import numpy as np
 
 from rotmod.errors import ParameterError
+
+if TYPE_CHECKING:
+    from rotmod.response import MaterialisedResponse
 
 __all__ = ["SCENARIOS", "Scenario", "make_scenario"]
 
@@ -80,7 +83,7 @@ class Scenario:
         """Total folded counts."""
         return int(self.folded.counts.sum())
 
-    def response(self, model: str) -> Any:
+    def response(self, model: str) -> MaterialisedResponse:
         """The response of this scenario with profile ``model`` (bin-averaged)."""
         from rotmod.response import build_response
 

@@ -10,11 +10,14 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rotmod.errors import ParameterError
+
+if TYPE_CHECKING:
+    from scipy.sparse.linalg import LinearOperator
 
 __all__ = ["ResponseOperator"]
 
@@ -96,7 +99,7 @@ class ResponseOperator(ABC):
     @abstractmethod
     def _adjoint(self, counts: np.ndarray) -> np.ndarray: ...
 
-    def as_linear_operator(self) -> Any:
+    def as_linear_operator(self) -> LinearOperator:
         """A `scipy.sparse.linalg.LinearOperator` on flattened vectors.
 
         The operator is declared float64 and returns float64 vectors (products of a float32

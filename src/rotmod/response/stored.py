@@ -27,13 +27,16 @@ import os
 import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rotmod.errors import InstrumentMismatchError, ParameterError
 from rotmod.profiles.base import DEFAULT_MODEL
 from rotmod.response.operator import ResponseOperator
+
+if TYPE_CHECKING:
+    from rotmod.response.materialised import MaterialisedResponse
 
 __all__ = [
     "StoredResponse",
@@ -210,7 +213,7 @@ class StoredResponse(ResponseOperator):
             out[ns] += y[:, ts].ravel() @ blk.reshape(-1, blk.shape[2])
         return out
 
-    def load(self) -> Any:
+    def load(self) -> MaterialisedResponse:
         """Read the whole matrix into a :class:`~rotmod.response.MaterialisedResponse`."""
         from rotmod.response.materialised import MaterialisedResponse
 
@@ -480,7 +483,7 @@ def open_response(
     return StoredResponse(p, g["P"], meta)
 
 
-def load_response(path: Any, **expected: Any) -> Any:
+def load_response(path: Any, **expected: Any) -> MaterialisedResponse:
     """Open (see :func:`open_response`) and read the whole response into memory.
 
     Returns

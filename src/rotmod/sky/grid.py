@@ -13,13 +13,16 @@ the images places every pixel where the response computed it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import astropy.units as u
 import numpy as np
 
 from rotmod._validate import as_angle, as_scalar
 from rotmod.errors import ParameterError
+
+if TYPE_CHECKING:
+    from astropy.wcs import WCS
 
 __all__ = ["SkyGrid"]
 
@@ -100,7 +103,7 @@ class SkyGrid:
         xr, yr = as_angle(x, "x"), as_angle(y, "y")
         return np.arctan(np.hypot(xr, yr)) * u.rad, np.arctan2(yr, xr) * u.rad
 
-    def wcs(self) -> Any:
+    def wcs(self) -> WCS:
         """An `astropy.wcs.WCS` (TAN) for images on this grid (see module notes)."""
         from astropy.wcs import WCS
 

@@ -89,6 +89,6 @@ def test_bad_files_raise_rotmod_error(events, tmp_path):
     p = write_events(events, tmp_path / "ev.fits")
     with fits.open(p) as h:
         del h["EVENTS"].header["MASK_A"]
-        h.writeto(tmp_path / "nokey.fits")
+        h.writeto(tmp_path / "nokey.fits", checksum=True)  # a consistent file
     with pytest.raises(RotmodError, match="lacks keyword MASK_A"):
         read_events(tmp_path / "nokey.fits")

@@ -169,14 +169,54 @@ def parse_range(text: str) -> np.ndarray:
         ) from None
 
 
-def check_output(path: str | os.PathLike, overwrite: bool, *, what: str = "output") -> Path:
-    """Refuse to overwrite unless asked, and make sure the folder exists."""
+def check_output(
+    path: str | os.PathLike, overwrite: bool, *, what: str = "output",
+    inputs: tuple[str | os.PathLike, ...] = (),
+) -> Path:
+    """Refuse to overwrite unless asked (and never an input), and make sure the folder exists."""
     p = Path(path)
+    for src in inputs:
+        if p.resolve() == Path(src).resolve():
+            raise UserError(f"{what} {str(p)!r} is also an input of this command; write the "
+                            "result to another file (--overwrite never replaces an input)")
     if p.exists() and not overwrite:
         raise UserError(f"{what} {str(p)!r} exists; pass --overwrite to replace it")
     if not p.parent.exists():
         raise UserError(f"{what} {str(p)!r}: folder {str(p.parent)!r} does not exist")
     return p
+
+
+def check_plot(path: str | os.PathLike | None, overwrite: bool, **kw: Any) -> Path | None:
+    """:func:`check_output` for ``--plot``, which must name an image format matplotlib writes.
+
+    Checked before any work is done, so a bad name never costs a computation.
+    """
+    if path is None:
+        return None
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    p = check_output(path, overwrite, what="--plot", **kw)
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if p.suffix[1:].lower() not in formats:
+        raise UserError(f"--plot {str(p)!r}: the extension must be an image format "
+                        f"({', '.join(sorted(formats))}), got {p.suffix or 'none'!r}")
+    return p
+
+
+def count(lo: int) -> Callable[[str], int]:
+    """argparse ``type=`` for an integer >= ``lo`` (``1e3`` is accepted when it is whole)."""
+
+    def conv(text: str) -> int:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}") from None
+        if not value.is_integer() or value < lo:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}")
+        return int(value)
+
+    conv.__name__ = f"integer >= {lo}"
+    return conv
 
 
 def check_input(path: str | os.PathLike, what: str = "input") -> Path:

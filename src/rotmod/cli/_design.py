@@ -13,6 +13,8 @@ from rotmod.cli._common import (
     add_output,
     add_progress,
     check_output,
+    check_plot,
+    count,
     load_config,
     parse_range,
     progress_wanted,
@@ -71,11 +73,11 @@ def register(sub: Any) -> None:
                    "design (default 1,1,1)")
     p.add_argument("--require-advanced", action="store_true",
                    help="choose the best design among those valid for the advanced model")
-    p.add_argument("--angles", type=int, default=64, metavar="N",
+    p.add_argument("--angles", type=count(1), default=64, metavar="N",
                    help="mask angles over half a turn (default 64)")
-    p.add_argument("--rings", type=int, default=3, metavar="N",
+    p.add_argument("--rings", type=count(1), default=3, metavar="N",
                    help="zenith rings sampling the field (default 3)")
-    p.add_argument("--azimuths", type=int, default=4, metavar="N",
+    p.add_argument("--azimuths", type=count(1), default=4, metavar="N",
                    help="azimuths per ring (default 4)")
     add_progress(p)
     add_output(p, help="table (.ecsv or .csv)")
@@ -87,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from rotmod.design import scan_designs
 
     out = check_output(args.output, args.overwrite)
-    plot = check_output(args.plot, args.overwrite, what="plot") if args.plot else None
+    plot = check_plot(args.plot, args.overwrite)
     cfg = load_config(args)
     inst = cfg.to_instrument()
     c = inst.detectors.diameter if args.c is None else args.c

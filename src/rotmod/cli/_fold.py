@@ -10,6 +10,8 @@ from rotmod.cli._common import (
     add_output,
     check_input,
     check_output,
+    check_plot,
+    count,
     save_figure,
     say,
     use_agg,
@@ -25,7 +27,7 @@ def register(sub: Any) -> None:
         epilog="example: rotmod fold events.fits --bins 360 -o folded.fits",
     )
     p.add_argument("events", metavar="EVENTS", help="event list (FITS, from rotmod simulate)")
-    p.add_argument("-n", "--bins", type=int, default=360, metavar="N",
+    p.add_argument("-n", "--bins", type=count(1), default=360, metavar="N",
                    help="mask-angle bins per rotation (default 360)")
     add_output(p, help="folded profiles (FITS)")
     p.add_argument("--plot", default=None, metavar="PNG", help="also plot the count rates")
@@ -38,8 +40,8 @@ def run(args: argparse.Namespace) -> int:
     from rotmod.io import read_events, write_folded
 
     src = check_input(args.events, "event list")
-    out = check_output(args.output, args.overwrite)
-    plot = check_output(args.plot, args.overwrite, what="plot") if args.plot else None
+    out = check_output(args.output, args.overwrite, inputs=(src,))
+    plot = check_plot(args.plot, args.overwrite)
     if args.bins < 1:
         raise UserError(f"--bins: must be >= 1, got {args.bins}")
     events = read_events(src)

@@ -13,6 +13,8 @@ from rotmod.cli._common import (
     add_instrument,
     add_output,
     check_output,
+    check_plot,
+    count,
     energy_of,
     load_config,
     save_figure,
@@ -43,13 +45,13 @@ def register(sub: Any) -> None:
                    help="profile model (standard, advanced, advanced-approx, advanced-g0, "
                    "exact); repeatable; default standard, advanced and exact, skipping those "
                    "that do not apply to the geometry")
-    p.add_argument("--angles", type=int, default=360, metavar="N",
+    p.add_argument("--angles", type=count(1), default=360, metavar="N",
                    help="mask angles over one turn (default 360)")
-    p.add_argument("--detector", type=int, default=None, metavar="D",
+    p.add_argument("--detector", type=count(0), default=None, metavar="D",
                    help="only this detector (index); default all in the table, 0 in the plot")
-    p.add_argument("--mc-photons", type=int, default=0, metavar="N",
+    p.add_argument("--mc-photons", type=count(0), default=0, metavar="N",
                    help="also run the Monte Carlo with N photons per angle (default 0: no)")
-    p.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    p.add_argument("--seed", type=count(0), default=0, help="Monte Carlo seed (default 0)")
     add_output(p, help="table file (.ecsv or .csv)")
     p.add_argument("--plot", default=None, metavar="PNG", help="also write a plot")
     p.set_defaults(func=run)
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from rotmod.profiles import MODELS, get_model
 
     out = check_output(args.output, args.overwrite)
-    plot = check_output(args.plot, args.overwrite, what="plot") if args.plot else None
+    plot = check_plot(args.plot, args.overwrite)
     if args.angles < 1:
         raise UserError(f"--angles: must be >= 1, got {args.angles}")
     cfg = load_config(args)

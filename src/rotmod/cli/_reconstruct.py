@@ -11,10 +11,13 @@ from rotmod.cli._common import (
     add_progress,
     check_input,
     check_output,
+    check_plot,
+    count,
     iteration_bar,
     progress_wanted,
     save_figure,
     say,
+    source_arg,
     use_agg,
 )
 
@@ -34,17 +37,18 @@ def register(sub: Any) -> None:
     p.add_argument("response", metavar="RESPONSE", help="response store (zarr)")
     p.add_argument("--method", default="mlem", metavar="NAME",
                    help="algorithm (backprojection, mlem, mart, sirt, ncar; default mlem)")
-    p.add_argument("--max-iter", type=int, default=None, metavar="N",
+    p.add_argument("--max-iter", type=count(1), default=None, metavar="N",
                    help="iteration limit (default: the method's)")
     p.add_argument("--fit-background", action="store_true",
                    help="fit a flat background per detector")
-    p.add_argument("--uncertainty", type=int, default=0, metavar="N",
+    p.add_argument("--uncertainty", type=count(0), default=0, metavar="N",
                    help="bootstrap N Poisson re-draws for a per-pixel uncertainty map")
-    p.add_argument("--seed", type=int, default=0, help="seed (NCAR, bootstrap; default 0)")
+    p.add_argument("--seed", type=count(0), default=0, help="seed (NCAR, bootstrap; default 0)")
     add_output(p, help="image (FITS)")
     add_progress(p)
     p.add_argument("--plot", default=None, metavar="PNG", help="also write a plot")
     p.add_argument("--mark", action="append", default=None, metavar="THETA,PHI",
+                   type=source_arg(),
                    help="mark a true source position on the plot (deg); repeatable")
     p.set_defaults(func=run)
 
@@ -59,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
 
     src = check_input(args.folded, "folded profiles")
     rsp = check_input(args.response, "response")
-    out = check_output(args.output, args.overwrite)
-    plot = check_output(args.plot, args.overwrite, what="plot") if args.plot else None
+    out = check_output(args.output, args.overwrite, inputs=(src, rsp))
+    plot = check_plot(args.plot, args.overwrite)
     if args.method not in ALGORITHMS:
         raise UserError(f"--method: must be one of {', '.join(sorted(ALGORITHMS))}, got "
                         f"{args.method!r}")
@@ -95,9 +99,7 @@ def run(args: argparse.Namespace) -> int:
 
         marks = None
         if args.mark:
-            from rotmod.cli._common import parse_source
-
-            m = np.array([parse_source(t) for t in args.mark])  # deg
+            m = np.array(args.mark)  # deg, checked by argparse
             marks = (m[:, 0], m[:, 1])
         ax = plot_image(res.image, res.grid, sources=marks,
                         title=f"{args.method} ({response.metadata()['model']['model']})")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from rotmod.cli._common import add_progress, progress_wanted, say
+from rotmod.cli._common import add_progress, count, progress_wanted, say
 
 
 def register(sub: Any) -> None:
@@ -28,7 +28,7 @@ def register(sub: Any) -> None:
     p.add_argument("--steps", default=None, metavar="LIST",
                    help="comma-separated subset of steps (profiles, speed, images, prototype, "
                    "summary); the report is always written")
-    p.add_argument("--seed", type=int, default=1, help="base seed (default 1)")
+    p.add_argument("--seed", type=count(0), default=1, help="base seed (default 1)")
     add_progress(p)
     p.set_defaults(func=run)
 

@@ -12,6 +12,7 @@ from rotmod.cli._common import (
     add_output,
     add_progress,
     check_output,
+    count,
     energy_of,
     load_config,
     progress_wanted,
@@ -42,7 +43,7 @@ def register(sub: Any) -> None:
                    help="pixel size (deg; default 0.2 = 12 arcmin, the paper's)")
     p.add_argument("--center", type=str, default="0,0", metavar="X,Y",
                    help="tangent-plane centre of the field (deg; default 0,0)")
-    p.add_argument("-n", "--bins", type=int, default=560, metavar="N",
+    p.add_argument("-n", "--bins", type=count(1), default=560, metavar="N",
                    help="mask-angle bins per rotation (default 560, the paper's)")
     p.add_argument("--bin-mode", choices=("center", "average"), default="center",
                    help="response of a bin: value at its centre or its mean (default center)")

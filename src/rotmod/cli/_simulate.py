@@ -14,6 +14,7 @@ from rotmod.cli._common import (
     add_output,
     add_progress,
     check_output,
+    count,
     energy_of,
     load_config,
     progress_wanted,
@@ -42,7 +43,7 @@ def register(sub: Any) -> None:
                    help="observation length (s)")
     p.add_argument("--background", type=quantity("1/s"), default=0.0, metavar="RATE",
                    help="flat background rate per detector (1/s; default 0)")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: fresh)")
+    p.add_argument("--seed", type=count(0), default=None, help="random seed (default: fresh)")
     add_progress(p)
     add_output(p, help="event list (FITS)")
     p.set_defaults(func=run)

@@ -100,16 +100,19 @@ class Mask:
             If neither ``mu`` nor the material's mass attenuation is fixed and no energy
             is given.
         """
+        # A given energy is checked even when the attenuation is fixed: a NaN or negative
+        # energy is a mistake whatever the mask.
+        e = None if energy is None else as_scalar(energy, "energy", u.keV, lo=0.0, lo_open=True)
         if self.mu is not None:
             return float(self.mu)
         if self.material.mass_attenuation is not None:
             return float(self.material.mass_attenuation * self.material.density)
-        if energy is None:
+        if e is None:
             raise ParameterError(
                 "energy is required: mask.mu is not set, so the attenuation comes from the "
                 f"material database ({self.material.name})"
             )
-        return float(self.material.linear_attenuation(as_scalar(energy, "energy", u.keV)))
+        return float(self.material.linear_attenuation(e))
 
     def slat_fraction(self, u0: np.ndarray) -> np.ndarray:
         """1 where mask coordinate ``u0`` lies in a slat, 0 in a gap (edges count as slat)."""

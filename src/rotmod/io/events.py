@@ -36,6 +36,7 @@ from rotmod._atomic import atomic_path
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.events import EventList, FoldedProfiles
 from rotmod.geometry import Instrument
+from rotmod.io._fits import open_verified
 
 __all__ = ["read_events", "read_folded", "write_events", "write_folded"]
 
@@ -136,15 +137,7 @@ def _write_atomic(hdul: fits.HDUList, path: str | os.PathLike, overwrite: bool) 
 
 
 def _open(path: str | os.PathLike) -> fits.HDUList:
-    p = Path(path)
-    if not p.is_file():
-        raise RotmodError(f"file {str(p)!r} does not exist")
-    try:
-        hdul = fits.open(p, memmap=False)
-        hdul.verify("exception")
-    except (OSError, fits.VerifyError, ValueError, TypeError) as exc:
-        raise RotmodError(f"file {str(p)!r} is not a readable FITS file: {exc}") from exc
-    return hdul
+    return open_verified(path)
 
 
 def _ext(hdul: fits.HDUList, name: str, path: Any) -> Any:
@@ -431,6 +424,11 @@ def read_folded(path: str | os.PathLike) -> FoldedProfiles:
         inst = _read_instrument(hdul, h, path, "PROFILES")
         lo = _col_in(tab.data, "BIN_LO", path, "PROFILES", u.deg)
         hi = _col_in(tab.data, "BIN_HI", path, "PROFILES", u.deg)
+        if lo.size == 0:
+            raise RotmodError(f"file {str(path)!r}: PROFILES table has no rows (no bins)")
+        if lo.size > 1 and not np.array_equal(lo[1:], hi[:-1]):
+            raise RotmodError(f"file {str(path)!r}: PROFILES bins are not contiguous "
+                              "(BIN_LO of each row must equal BIN_HI of the row before)")
         counts = np.atleast_2d(_col(tab.data, "COUNTS", path, "PROFILES").T).astype(np.int64)
         if counts.shape[1] != lo.size:
             counts = counts.reshape(-1, lo.size)

@@ -13,6 +13,7 @@ import numpy as np
 
 from rotmod._atomic import atomic_path
 from rotmod.errors import ParameterError
+from rotmod.io._fits import open_verified
 
 __all__ = ["FitsImage", "read_image", "write_image"]
 
@@ -163,13 +164,10 @@ def read_image(path: str | os.PathLike[str]) -> FitsImage:
     ParameterError
         Missing file or no 2-D primary image.
     """
-    from astropy.io import fits
     from astropy.wcs import WCS
 
     p = Path(path)
-    if not p.exists():
-        raise ParameterError(f"path {str(p)!r} does not exist")
-    with fits.open(p) as hl:
+    with open_verified(p) as hl:
         hdr = hl[0].header.copy()
         if hl[0].data is None or hl[0].data.ndim != 2:
             raise ParameterError(f"path {str(p)!r} has no 2-D primary image")

@@ -113,6 +113,8 @@ def project(instrument: Instrument, theta: Any, phi: Any, energy: Any = None) ->
     energy : float or Quantity, optional
         Photon energy (keV); needed unless the mask has an explicit ``mu``.
     """
+    if not isinstance(instrument, Instrument):
+        raise ParameterError(f"instrument must be an Instrument, got {type(instrument).__name__}")
     th, ph = check_sources(theta, phi)
     mask, det = instrument.mask, instrument.detectors
     mu = mask.linear_attenuation(energy)

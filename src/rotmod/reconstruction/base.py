@@ -165,6 +165,27 @@ class ReconstructionResult:
         return self.chi2 / max(self.dof, 1)
 
 
+def _check_bins_match(response: ResponseOperator, data: Any) -> None:
+    """Refuse folded counts whose mask-angle bins are not the response's time bins.
+
+    Counting the bins is not enough: a file from elsewhere may hold as many bins with other
+    edges (non-uniform, or shifted), and the fit would then run silently on mismatched data.
+    """
+    edges = getattr(data, "bin_edges", None)
+    tb = getattr(response, "time_bins", None)
+    if edges is None or tb is None:
+        return
+    want = tb.edges()
+    got = np.asarray(edges.to_value("rad") if hasattr(edges, "to_value") else edges)
+    # Edges written to FITS in degrees and read back differ by a few ulp (1e-12 rad).
+    if got.shape != want.shape or not np.allclose(got, want, rtol=0, atol=1e-9):
+        raise ParameterError(
+            f"data: the folded bins ({got.size - 1} bins, edges {np.degrees(got[:3]).round(6)}"
+            f"... deg) are not the response's time bins ({tb.n_bins} equal bins over a turn); "
+            "fold the events with the response's binning"
+        )
+
+
 ALGORITHMS: dict[str, type[Reconstructor]] = {}
 
 
@@ -254,6 +275,7 @@ class Reconstructor(ABC):
         fit_background: bool | None = None,
         **params: Any,
     ) -> None:
+        _check_bins_match(response, data)
         self.data: PoissonData = as_data(
             data, exposure=exposure, background=background, fit_background=fit_background
         )

@@ -1,0 +1,115 @@
+"""Hostile input: every mistake gets a one-line error naming what was wrong, no traceback,
+and nothing a user owns is destroyed (issue 13's examples that rotmod now refuses)."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from astropy.io import fits
+
+from rotmod import Instrument, get_model
+from rotmod.cli import main
+from rotmod.errors import ParameterError, RotmodError
+from rotmod.events import FoldedProfiles, fold
+from rotmod.io import read_folded, write_events, write_folded
+from rotmod.materials import PAPER_SIGMA_662
+from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.reconstruction import reconstruct
+from rotmod.response import TimeBinning, build_response, write_response
+from rotmod.sky import SkyGrid
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("hostile")
+    inst = Instrument.paper()
+    ev = simulate_observation(inst, PointSources([3.0], [20.0], rate=20.0, energy=122.0),
+                              t_stop=120.0, seed=4)
+    write_events(ev, d / "ev.fits")
+    write_folded(fold(ev, 12), d / "f.fits")
+    write_response(d / "r.zarr", inst, SkyGrid((3, 3), 1.0), 12, energy=122, progress=False)
+    return d
+
+
+def _cli(capsys, *argv):
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    return code, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["profile", "-s", "6,0", "--mc-photons", "-1", "-o", "{d}/p.csv"],
+         "--mc-photons: must be an integer >= 0, got '-1'"),
+        (["profile", "-s", "6,0", "--angles", "2.5", "-o", "{d}/p.csv"],
+         "--angles: must be an integer >= 1"),
+        (["profile", "-s", "6,0", "-o", "{d}/p.csv", "--plot", "{d}/p.txt"],
+         "--plot '{d}/p.txt': the extension must be an image format"),
+        (["fold", "{d}/ev.fits", "-o", "{d}/ev.fits", "--overwrite"],
+         "is also an input of this command"),
+        (["fold", "{d}/ev.fits", "-o", "{d}/f2.fits", "-n", "0"],
+         "--bins: must be an integer >= 1"),
+        (["reconstruct", "{d}/f.fits", "{d}/r.zarr", "-o", "{d}/f.fits", "--overwrite"],
+         "is also an input of this command"),
+        (["reconstruct", "{d}/f.fits", "{d}/r.zarr", "-o", "{d}/i.fits", "--mark", "95,0"],
+         "zenith must be in \\[0, 90\\) deg"),
+    ],
+)
+def test_cli_mistakes_are_one_line_errors(capsys, files, argv, match) -> None:
+    before = (files / "ev.fits").read_bytes()
+    code, err = _cli(capsys, *(a.format(d=files) for a in argv))
+    assert code == 2, err
+    # argparse prints its usage first; the error itself is one line, and no traceback.
+    assert "Traceback" not in err
+    assert re.search(match.format(d=files), err.strip().splitlines()[-1]), err
+    assert (files / "ev.fits").read_bytes() == before  # the input is never touched
+    assert not (files / "p.csv").exists()  # refused before any work
+
+
+def test_api_mistakes_name_the_parameter(files) -> None:
+    inst = Instrument.paper(sigma=PAPER_SIGMA_662)
+    with pytest.raises(ParameterError, match="instrument must be an Instrument, got NoneType"):
+        get_model("exact").profile(None, [1.0], [0.0], [0.0])
+    # A fixed attenuation does not make a nonsensical energy acceptable.
+    for bad in (np.nan, -5.0):
+        with pytest.raises(ParameterError, match="energy must be"):
+            get_model("exact").profile(inst, [1.0], [0.0], [0.0], energy=bad)
+
+
+def test_folded_files_with_no_rows_or_gapped_bins_are_refused(files, tmp_path) -> None:
+    with fits.open(files / "f.fits") as h:
+        h["PROFILES"].data = h["PROFILES"].data[:0]
+        h.writeto(tmp_path / "empty.fits", checksum=True)
+    with pytest.raises(RotmodError, match="PROFILES table has no rows"):
+        read_folded(tmp_path / "empty.fits")
+    with fits.open(files / "f.fits") as h:
+        h["PROFILES"].data["BIN_HI"][3] += 1.0
+        h.writeto(tmp_path / "gap.fits", checksum=True)
+    with pytest.raises(RotmodError, match="not contiguous"):
+        read_folded(tmp_path / "gap.fits")
+
+
+def test_folded_bins_must_be_the_response_bins(files) -> None:
+    f = read_folded(files / "f.fits")
+    resp = build_response(f.instrument, SkyGrid((3, 3), 1.0), TimeBinning(12), energy=122)
+    # Same number of bins, other edges (a quarter-bin shift): refused, not fitted silently.
+    shifted = FoldedProfiles(f.counts, f.exposure, f.bin_edges + 7.5 * f.bin_edges.unit / 57.3,
+                             f.instrument, f.gti)
+    with pytest.raises(ParameterError, match="not the response's time bins"):
+        reconstruct(resp, shifted, "mlem", max_iter=2)
+    reconstruct(resp, f, "mlem", max_iter=2)  # the file's own bins are accepted
+
+
+def test_a_flipped_bit_in_a_file_rotmod_wrote_is_detected(files, tmp_path) -> None:
+    from rotmod.io import read_events
+
+    data = bytearray((files / "ev.fits").read_bytes())
+    with fits.open(files / "ev.fits") as h:
+        off = h.fileinfo(h.index_of("GTI"))["datLoc"] + 3
+    data[off] ^= 0x10  # one bit of a GTI boundary: would change the exposure silently
+    (tmp_path / "ev.fits").write_bytes(bytes(data))
+    with pytest.raises(RotmodError, match=r"is corrupt: .*GTI"):
+        read_events(tmp_path / "ev.fits")

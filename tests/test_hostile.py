@@ -113,3 +113,45 @@ def test_a_flipped_bit_in_a_file_rotmod_wrote_is_detected(files, tmp_path) -> No
     (tmp_path / "ev.fits").write_bytes(bytes(data))
     with pytest.raises(RotmodError, match=r"is corrupt: .*GTI"):
         read_events(tmp_path / "ev.fits")
+
+
+@pytest.mark.parametrize(
+    ("argv", "what"),
+    [
+        (["response", "--fov", "100", "--pixel", "0.0001", "-o", "{d}/big.zarr"],
+         "projecting 1000000000000 sky pixels"),
+        (["profile", "-s", "6,0", "--angles", "1e12", "-o", "{d}/big.csv"], "1000000000000"),
+        (["fold", "{d}/ev.fits", "-n", "1e12", "-o", "{d}/big.fits"], "1000000000000 bins"),
+        (["response", "-n", "1e12", "-o", "{d}/big2.zarr"], "1000000000000 time bins"),
+        (["simulate", "-s", "3,0,10", "-t", "1e12", "-o", "{d}/big.fits"],
+         "an observation of 1e\\+12 s"),
+    ],
+)
+def test_huge_requests_are_refused_up_front(capsys, files, argv, what) -> None:
+    # Each of these used to allocate until MemoryError (or for minutes); now the estimate is
+    # compared with the budget before anything is allocated.
+    code, err = _cli(capsys, *(a.format(d=files) for a in argv))
+    assert code == 2 and "Traceback" not in err, err
+    assert re.search(rf"{what}.* needs about .* more than rotmod's memory budget", err), err
+    assert not list(files.glob("big*"))
+
+
+def test_budget_is_configurable_and_checked(monkeypatch, tmp_path) -> None:
+    from rotmod.config import InstrumentConfig
+    from rotmod.limits import MemoryBudgetError, memory_budget
+
+    monkeypatch.setenv("ROTMOD_MEMORY_BUDGET", "1 MiB")
+    assert memory_budget() == 2**20
+    with pytest.raises(MemoryBudgetError, match=r"profiles of 1 detectors x 1000 angles x 200"):
+        get_model("exact").profile(Instrument.paper(), np.zeros(200), np.zeros(200),
+                                   np.zeros(1000), energy=662)
+    monkeypatch.setenv("ROTMOD_MEMORY_BUDGET", "lots")
+    with pytest.raises(MemoryBudgetError, match="ROTMOD_MEMORY_BUDGET must be an amount"):
+        memory_budget()
+    monkeypatch.delenv("ROTMOD_MEMORY_BUDGET")
+    # 100000 rings would be 3e10 detectors: refused at once, not looped over for minutes.
+    d = {"mask": {"slat_width": "4 cm", "slat_gap": "4 cm", "thickness": "2 cm",
+                  "height": "1 m"},
+         "detectors": {"layout": "hexagonal", "diameter": "4 cm", "rings": 100000}}
+    with pytest.raises(RotmodError, match="hexagonal array of 100000 rings"):
+        InstrumentConfig.from_dict(d)

@@ -78,6 +78,13 @@ def run(args: argparse.Namespace) -> int:
         dets = [args.detector]
     src = np.array(args.source, dtype=float)
     theta, phi = src[:, 0], src[:, 1]  # deg, the library's meaning of a plain angle
+    from rotmod.limits import check_memory
+
+    # Every model's profiles plus the table's rows (~10 columns) for each of them.
+    n_models = len(args.model or DEFAULT_MODELS) + (args.mc_photons > 0)
+    check_memory(8.0 * args.angles * n_det * len(src) * 11 * n_models,
+                 f"profiles of {n_det} detectors x {args.angles} angles x {len(src)} sources",
+                 hint="ask for fewer --angles")
     xi = (np.arange(args.angles) + 0.5) * (360.0 / args.angles)
     explicit = args.model is not None
     names = list(dict.fromkeys(args.model or DEFAULT_MODELS))

@@ -26,6 +26,7 @@ from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
 from rotmod.events.gti import check_gti
 from rotmod.geometry import Instrument
+from rotmod.limits import check_memory
 
 __all__ = ["FoldedProfiles", "exposure_per_bin", "fold"]
 
@@ -65,6 +66,8 @@ def exposure_per_bin(
     n = _check_n_bins(n_bins)
     T = as_scalar(rotation_period, "rotation_period", u.s, lo=0.0, lo_open=True)
     phase = as_angle_scalar(start_phase, "start_phase")
+    check_memory(8.0 * 4 * g.shape[0] * n, f"the exposure of {g.shape[0]} good-time intervals "
+                 f"in {n} bins", hint="fold into fewer bins")
     q = _rotations(g, T, phase)  # (k, 2)
     lo = np.arange(n) / n
 
@@ -196,6 +199,8 @@ def fold(events: EventList, n_bins: int) -> FoldedProfiles:
         raise ParameterError(f"events must be an EventList, got {type(events)}")
     n = _check_n_bins(n_bins)
     inst = events.instrument
+    check_memory(8.0 * (len(inst.detectors) + 4) * n, f"folding into {n} bins",
+                 hint="fold into fewer bins")
     t = events.time
     g = events.gti
     # Events in a GTI: index of the last GTI starting at or before t.

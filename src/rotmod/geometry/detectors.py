@@ -8,8 +8,9 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_array, as_scalar
+from rotmod._validate import as_array, as_int, as_scalar
 from rotmod.errors import ParameterError
+from rotmod.limits import check_memory
 
 __all__ = ["DetectorArray"]
 
@@ -84,20 +85,26 @@ class DetectorArray:
             (a little room for housings).  Must be >= diameter so faces do not overlap.
         """
         c = as_scalar(diameter, "detectors.diameter", u.cm, lo=0.0, lo_open=True)
-        if not isinstance(rings, int | np.integer) or rings < 0:
-            raise ParameterError(f"detectors.rings must be an integer >= 0, got {rings!r}")
+        rings = as_int(rings, "detectors.rings", 0)
         d = 1.05 * c if pitch is None else as_scalar(pitch, "detectors.pitch", u.cm)
         if d < c:
             raise ParameterError(
                 f"detectors.pitch must be >= detectors.diameter ({c:g} cm), got {d:g} cm"
             )
-        pts = []
+        side = 2 * rings + 1
+        # The (q, r) square and the positions, sort keys and order: ~10 float64 per point.
+        check_memory(10 * 8.0 * side * side, f"a hexagonal array of {rings} rings "
+                     f"({1 + 3 * rings * (rings + 1)} detectors)", hint="use fewer rings")
         # Axial hex coordinates (q, r) with |q|, |r|, |q + r| <= rings.
-        for q in range(-rings, rings + 1):
-            for r in range(max(-rings, -q - rings), min(rings, -q + rings) + 1):
-                pts.append((d * (q + r / 2), d * r * np.sqrt(3) / 2))
-        pts.sort(key=lambda p: (round(np.hypot(*p), 9), round(np.arctan2(p[1], p[0]), 9)))
-        return cls(np.array(pts), c)
+        q, r = np.meshgrid(np.arange(-rings, rings + 1), np.arange(-rings, rings + 1),
+                           indexing="ij")
+        keep = np.abs(q + r) <= rings
+        q, r = q[keep], r[keep]
+        x, y = d * (q + r / 2), d * r * np.sqrt(3) / 2
+        # Centre first, then ring by ring, counter-clockwise from +x (rounded so that equal
+        # radii and angles compare equal despite round-off).
+        order = np.lexsort((np.round(np.arctan2(y, x), 9), np.round(np.hypot(x, y), 9)))
+        return cls(np.stack([x[order], y[order]], axis=1), c)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-number description (cm) for metadata and files."""

@@ -15,6 +15,7 @@ from rotmod._validate import as_angle, as_angle_scalar, as_array, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, check_gti
 from rotmod.geometry import Instrument
+from rotmod.limits import check_memory
 from rotmod.montecarlo import _transport as tr
 from rotmod.montecarlo._rng import chunk_states, seed_sequence
 from rotmod.montecarlo.sources import PointSources
@@ -236,6 +237,9 @@ def simulate_profiles(
     det = inst.detectors
     n_det, n_t, n_n = len(det), xs.size, th.size
     n_cells = n_det * n_t * n_n
+    check_memory(8.0 * n_cells * (1 + math.ceil(n_photons / chunk_size)),
+                 f"a Monte Carlo of {n_det} detectors x {n_t} angles x {n_n} sources",
+                 hint="simulate fewer angles or sources at a time")
     lo, hi, part, nphot, m = _chunks(n_cells, n_photons, chunk_size)
     counts = np.zeros((m, n_cells), dtype=np.int64)
     root = seed_sequence(seed)
@@ -396,6 +400,12 @@ def simulate_observation(
 
     # Time pieces of at most chunk_size expected incident photons each.
     total_rate = n_det * float(sources.rate.sum()) + float(bkg.sum())
+    duration = float(np.sum(g[:, 1] - g[:, 0]))
+    # Every incident photon may become an event (TIME 8 B, DET_ID, ENERGY, SRC_ID 4 B each),
+    # held twice while the pieces are joined and sorted.
+    check_memory(2 * 20.0 * total_rate * duration + 16.0 * duration * total_rate / chunk_size,
+                 f"an observation of {duration:g} s at {total_rate:g} photons/s",
+                 hint="simulate a shorter time (or in several pieces) and fold each")
     max_dt = np.inf if total_rate == 0 else chunk_size / total_rate
     pieces = []
     for s_, e_ in g:

@@ -32,6 +32,7 @@ import numpy as np
 from rotmod._validate import as_angle, as_float_dtype
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument
+from rotmod.limits import check_memory
 
 __all__ = [
     "DEFAULT_MODEL",
@@ -185,6 +186,10 @@ class ProfileModel(ABC):
         xi = check_angles(xi)
         self.check_validity(instrument, geom)
         dt = as_float_dtype(dtype)
+        n_det = len(instrument.detectors)
+        check_memory(float(n_det) * xi.size * geom.theta.size * dt.itemsize,
+                     f"profiles of {n_det} detectors x {xi.size} angles x {geom.theta.size} "
+                     "sources", hint="ask for fewer angles or sources at a time")
         out = np.empty((len(instrument.detectors), xi.size, geom.theta.size), dtype=dt)
         self._evaluate(instrument, geom, np.cos(xi), np.sin(xi), out)
         return out

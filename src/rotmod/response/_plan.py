@@ -17,6 +17,7 @@ import numpy as np
 from rotmod._validate import as_float_dtype, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray, Instrument
+from rotmod.limits import check_memory
 from rotmod.profiles.base import (
     DEFAULT_MODEL,
     ProfileModel,
@@ -152,6 +153,10 @@ def make_plan(
     dt = as_float_dtype(dtype)
     inst = _select_detectors(instrument, detectors)
     e = None if energy is None else as_scalar(energy, "energy", _kev(), lo=0.0, lo_open=True)
+    # Pixel directions and the projected geometry: ~(2 n_det + 6) float64 per pixel.
+    check_memory(8.0 * grid.size * (2 * len(inst.detectors) + 6),
+                 f"projecting {grid.size} sky pixels for {len(inst.detectors)} detectors",
+                 hint="use larger pixels or a smaller field")
     theta, phi = grid.directions()
     geom = project(inst, theta, phi, e)
     mdl.check_validity(inst, geom)

@@ -13,7 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from rotmod._validate import as_int
 from rotmod.errors import ParameterError
+from rotmod.limits import check_memory
 
 __all__ = ["TimeBinning"]
 
@@ -51,18 +53,15 @@ class TimeBinning:
     n_sub: int = 4
 
     def __post_init__(self) -> None:
-        if isinstance(self.n_bins, bool) or not isinstance(self.n_bins, int | np.integer):
-            raise ParameterError(f"time_bins.n_bins must be an integer >= 1, got {self.n_bins!r}")
-        if self.n_bins < 1:
-            raise ParameterError(f"time_bins.n_bins must be >= 1, got {self.n_bins}")
+        n = as_int(self.n_bins, "time_bins.n_bins", 1)
         if self.mode not in _MODES:
             raise ParameterError(f"time_bins.mode must be one of {_MODES}, got {self.mode!r}")
-        if isinstance(self.n_sub, bool) or not isinstance(self.n_sub, int | np.integer):
-            raise ParameterError(f"time_bins.n_sub must be an integer >= 1, got {self.n_sub!r}")
-        if self.n_sub < 1:
-            raise ParameterError(f"time_bins.n_sub must be >= 1, got {self.n_sub}")
-        object.__setattr__(self, "n_bins", int(self.n_bins))
-        object.__setattr__(self, "n_sub", int(self.n_sub) if self.mode == "average" else 1)
+        n_sub = as_int(self.n_sub, "time_bins.n_sub", 1) if self.mode == "average" else 1
+        # Edges, centres and sub-sample angles are held as float64 arrays.
+        check_memory(8.0 * 3 * n * n_sub, f"{n} time bins x {n_sub} sub-samples",
+                     hint="use fewer time bins")
+        object.__setattr__(self, "n_bins", n)
+        object.__setattr__(self, "n_sub", n_sub)
 
     @property
     def width(self) -> float:

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from rotmod.errors import ParameterError
+from rotmod.limits import check_memory
 from rotmod.profiles.base import DEFAULT_MODEL, ProfileModel
 from rotmod.response._plan import ResponsePlan, make_plan
 from rotmod.response.operator import ResponseOperator
@@ -186,6 +187,11 @@ def build_response(
     ParameterError, MaterialError, ModelValidityError
     """
     plan = make_plan(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors)
+    d, t, n = plan.shape
+    check_memory(float(d) * t * n * plan.dtype.itemsize,
+                 f"a response matrix of {d} detectors x {t} time bins x {n} pixels "
+                 f"({plan.dtype.name})",
+                 hint="use MatrixFreeResponse or write_response (blocks, on disk) instead")
     out = np.empty(plan.shape, dtype=plan.dtype)
     if scheduler is None and client is None and not progress:
         _fill(plan, out)

@@ -20,6 +20,7 @@ import numpy as np
 
 from rotmod._validate import as_angle, as_scalar
 from rotmod.errors import ParameterError
+from rotmod.limits import check_memory
 
 if TYPE_CHECKING:
     from astropy.wcs import WCS
@@ -84,6 +85,9 @@ class SkyGrid:
     def pixel_centers(self) -> tuple[np.ndarray, np.ndarray]:
         """Tangent-plane coordinates ``(x, y)`` (deg) of pixel centres, each shape (ny, nx)."""
         ny, nx = self.shape
+        # x, y here and theta, phi in directions(): four float64 values per pixel.
+        check_memory(4 * 8.0 * nx * ny, f"a sky grid of {ny} x {nx} pixels",
+                     hint="use larger pixels or a smaller field")
         x = self.center[0] + (np.arange(nx) - (nx - 1) / 2) * self.pixel_size
         y = self.center[1] + (np.arange(ny) - (ny - 1) / 2) * self.pixel_size
         return np.meshgrid(x, y)

@@ -155,3 +155,23 @@ def test_budget_is_configurable_and_checked(monkeypatch, tmp_path) -> None:
          "detectors": {"layout": "hexagonal", "diameter": "4 cm", "rings": 100000}}
     with pytest.raises(RotmodError, match="hexagonal array of 100000 rings"):
         InstrumentConfig.from_dict(d)
+
+
+def test_unicode_paths_work_in_every_command(capsys, files, tmp_path) -> None:
+    import shutil
+    from urllib.parse import unquote
+
+    from rotmod.io.images import read_image
+
+    d = tmp_path / "données ré"
+    d.mkdir()
+    shutil.copytree(files / "r.zarr", d / "ré.zarr")
+    code, err = _cli(capsys, "fold", files / "ev.fits", "-n", "12", "-o", d / "plié.fits")
+    assert code == 0, err
+    code, err = _cli(capsys, "reconstruct", d / "plié.fits", d / "ré.zarr", "-o",
+                     d / "image é.fits", "--plot", d / "image é.png")
+    assert code == 0, err
+    img = read_image(d / "image é.fits")
+    # The path goes into the header percent-encoded (FITS headers are ASCII), reversibly.
+    assert unquote(img.header["RESPONSE"]) == str(d / "ré.zarr")
+    assert (d / "image é.png").stat().st_size > 0

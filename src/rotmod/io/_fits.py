@@ -16,7 +16,21 @@ from astropy.io import fits
 
 from rotmod.errors import RotmodError
 
-__all__ = ["open_verified"]
+__all__ = ["header_text", "open_verified"]
+
+
+def header_text(value: str) -> str:
+    """``value`` made safe for a FITS header: printable ASCII, reversibly.
+
+    FITS header values are printable ASCII; a path such as ``ré.zarr`` is written
+    percent-encoded (``r%C3%A9.zarr``, :func:`urllib.parse.unquote` gives it back).  Long
+    values are left whole: astropy writes them with CONTINUE cards.
+    """
+    from urllib.parse import quote
+
+    if all(" " <= ch <= "~" for ch in value):
+        return value
+    return quote(value, safe="".join(chr(c) for c in range(32, 127) if chr(c) != "%"))
 
 
 def open_verified(path: str | os.PathLike) -> fits.HDUList:

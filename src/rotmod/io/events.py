@@ -36,7 +36,7 @@ from rotmod._atomic import atomic_path
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.events import EventList, FoldedProfiles
 from rotmod.geometry import Instrument
-from rotmod.io._fits import open_verified
+from rotmod.io._fits import header_text, open_verified
 
 __all__ = ["read_events", "read_folded", "write_events", "write_folded"]
 
@@ -107,10 +107,10 @@ def _time_cards(meta: dict[str, Any], t_start: float, t_stop: float, gti: np.nda
     mjdref = float(meta.get("mjdref", 51544.0))
     ontime = float(np.sum(gti[:, 1] - gti[:, 0]))
     return [
-        ("TELESCOP", str(meta.get("telescop", "ROTMOD")), "mission or telescope"),
-        ("INSTRUME", str(meta.get("instrume", "RM")), "instrument"),
-        ("CREATOR", str(meta.get("creator", "rotmod")), "software"),
-        ("TIMESYS", str(meta.get("timesys", "TT")), "time system"),
+        ("TELESCOP", header_text(str(meta.get("telescop", "ROTMOD"))), "mission or telescope"),
+        ("INSTRUME", header_text(str(meta.get("instrume", "RM"))), "instrument"),
+        ("CREATOR", header_text(str(meta.get("creator", "rotmod"))), "software"),
+        ("TIMESYS", header_text(str(meta.get("timesys", "TT"))), "time system"),
         ("TIMEUNIT", "s", "unit of TIME, TSTART, TSTOP"),
         ("TIMEREF", "LOCAL", "times are not barycentred"),
         ("MJDREFI", math.floor(mjdref), "integer part of reference MJD"),

@@ -13,19 +13,22 @@ import numpy as np
 
 from rotmod._atomic import atomic_path
 from rotmod.errors import ParameterError
-from rotmod.io._fits import open_verified
+from rotmod.io._fits import header_text, open_verified
 
 __all__ = ["FitsImage", "read_image", "write_image"]
 
 
 def _card_value(v: Any) -> Any:
-    if isinstance(v, bool | int | float | str) or v is None:
+    """A header value: numbers as they are, text made ASCII-safe and never cut (CONTINUE)."""
+    if isinstance(v, str):
+        return header_text(v)
+    if isinstance(v, bool | int | float) or v is None:
         if isinstance(v, float) and not np.isfinite(v):
             return str(v)
         return "None" if v is None else v
     if isinstance(v, np.generic):
         return _card_value(v.item())
-    return json.dumps(v, default=str)[:60]
+    return json.dumps(v, default=str)
 
 
 @dataclass
@@ -119,7 +122,7 @@ def write_image(
     if result is not None:
         hdr["RECMETH"] = (result.method, "reconstruction method")
         hdr["NITER"] = (int(result.n_iter), "iterations")
-        hdr["STOPREAS"] = (str(result.stop_reason)[:68], "stop reason")
+        hdr["STOPREAS"] = (header_text(str(result.stop_reason)), "stop reason")
         hdr["RUNTIME"] = (float(result.run_time), "[s] reconstruction wall time")
         hdr["CHI2"] = (float(result.chi2), "Pearson chi2 of the final model")
         hdr["DEVIANCE"] = (float(result.deviance), "Poisson deviance of the final model")
@@ -127,7 +130,7 @@ def write_image(
         hdr["CHI2DOF"] = (float(result.chi2_dof), "chi2 per dof")
         for k, v in sorted(result.params.items()):
             hdr[f"HIERARCH RECPAR {k.upper()}"] = _card_value(v)
-        hdr["RECPARAM"] = json.dumps(result.params, default=str)[:68]
+        hdr["RECPARAM"] = json.dumps(result.params, default=str)  # whole, via CONTINUE
     for k, v in (meta or {}).items():
         key = k.upper() if len(k) <= 8 and k.isalnum() else f"HIERARCH {k}"
         hdr[key] = _card_value(v)

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
 from rotmod import DetectorArray, Instrument
-from rotmod.errors import InstrumentMismatchError, ParameterError
+from rotmod.errors import InstrumentMismatchError, ParameterError, RotmodError
 from rotmod.materials import PAPER_SIGMA_662
 from rotmod.response import TimeBinning, build_response
 from rotmod.response.stored import (
@@ -150,3 +152,67 @@ def test_open_errors(tmp_path):
     zarr.open_group(str(tmp_path / "other.zarr"), mode="w")
     with pytest.raises(ParameterError, match="not a rotmod response store"):
         open_response(tmp_path / "other.zarr")
+
+
+def _chunk_files(store):
+    return sorted(p for p in (store / "P" / "c").rglob("*") if p.is_file())
+
+
+def test_a_deleted_chunk_in_a_partial_store_is_recomputed(tmp_path, inst, grid):
+    path, partial = tmp_path / "d.zarr", tmp_path / "d.zarr.partial"
+    tb = TimeBinning(20)
+
+    def stop_after_3(done, total):
+        if done == 3:
+            raise Interrupt("stop")
+
+    with pytest.raises(Interrupt):
+        write_response(path, inst, grid, tb, chunks=(4, 20), on_chunk=stop_after_3)
+    victim = _chunk_files(partial)[0]
+    victim.unlink()  # marked done, but gone
+    resumed = []
+    out = write_response(path, inst, grid, tb, on_chunk=lambda d, t: resumed.append(d))
+    assert len(resumed) == 13  # 12 never written + the deleted one
+    m = out.load().matrix
+    import zarr
+
+    assert np.all(np.isfinite(m)) and zarr.open_group(str(path)).attrs["complete"] is True
+    np.testing.assert_allclose(m, build_response(inst, grid, tb).matrix, rtol=0, atol=6e-8)
+
+
+@pytest.mark.parametrize("damage", ["flip", "truncate", "delete"])
+def test_a_damaged_chunk_is_an_error_naming_store_and_chunk(tmp_path, inst, grid, damage):
+    path = tmp_path / "x.zarr"
+    write_response(path, inst, grid, 20, chunks=(10, 42))
+    f = _chunk_files(path)[1]
+    data = bytearray(f.read_bytes())
+    if damage == "flip":
+        data[len(data) // 2] ^= 0x04
+        f.write_bytes(bytes(data))
+    elif damage == "truncate":
+        f.write_bytes(bytes(data[: len(data) // 2]))
+    else:
+        f.unlink()
+    resp = open_response(path)
+    with pytest.raises(RotmodError, match=r"response store .*x\.zarr.*chunk t 10:20, n 0:42"):
+        resp.forward(np.ones(resp.n_sky))
+    with pytest.raises(RotmodError, match="rebuild it"):
+        resp.load()
+
+
+def test_damaged_metadata_is_a_clear_error(tmp_path, inst, grid):
+    path = tmp_path / "m.zarr"
+    write_response(path, inst, grid, 20)
+    (path / "zarr.json").write_text("{not json")
+    with pytest.raises(RotmodError, match=r"m\.zarr.* cannot be opened"):
+        open_response(path)
+
+
+def test_a_second_writer_is_refused_and_a_later_run_recovers(tmp_path, inst, grid):
+    from rotmod.io.lock import LockedError, PathLock
+
+    path = tmp_path / "l.zarr"
+    with PathLock(path), pytest.raises(LockedError, match=rf"pid {os.getpid()}"):
+        write_response(path, inst, grid, 20)
+    # The lock dies with its holder: the next run goes ahead.
+    assert write_response(path, inst, grid, 20).n_time == 20

@@ -31,7 +31,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rotmod.errors import InstrumentMismatchError, ParameterError
+from rotmod.errors import InstrumentMismatchError, ParameterError, RotmodError
+from rotmod.io.lock import PathLock
 from rotmod.profiles.base import DEFAULT_MODEL
 from rotmod.response.operator import ResponseOperator
 
@@ -126,6 +127,12 @@ def _read_meta(group: Any, path: Path) -> dict[str, Any]:
         meta = json.loads(group.attrs[_ATTR])
     except KeyError:
         raise ParameterError(f"path {str(path)!r} is not a rotmod response store") from None
+    except (TypeError, ValueError) as exc:
+        raise RotmodError(f"response store {str(path)!r}: its metadata is damaged ({exc}); "
+                          "rebuild it with write_response") from exc
+    if not isinstance(meta, dict):
+        raise RotmodError(f"response store {str(path)!r}: its metadata is damaged (not a "
+                          "table); rebuild it with write_response")
     if meta.get("format_version") != FORMAT_VERSION:
         raise ParameterError(
             f"path {str(path)!r} has response format_version "
@@ -197,11 +204,14 @@ class StoredResponse(ResponseOperator):
             for n0 in range(0, self.n_sky, bn):
                 yield slice(t0, min(self.n_time, t0 + bt)), slice(n0, min(self.n_sky, n0 + bn))
 
+    def _block(self, ts: slice, ns: slice) -> np.ndarray:
+        return read_checked(self.array, ts, ns, self.path)
+
     def _forward(self, sky: np.ndarray) -> np.ndarray:
         x = np.asarray(sky, dtype=self.dtype)
         out = np.zeros((self.n_det, self.n_time), dtype=self.dtype)
         for ts, ns in self._chunks():
-            blk = np.asarray(self.array[:, ts, ns])
+            blk = self._block(ts, ns)
             out[:, ts] += (blk.reshape(-1, blk.shape[2]) @ x[ns]).reshape(blk.shape[:2])
         return out
 
@@ -209,7 +219,7 @@ class StoredResponse(ResponseOperator):
         y = np.asarray(counts, dtype=self.dtype)
         out = np.zeros(self.n_sky, dtype=self.dtype)
         for ts, ns in self._chunks():
-            blk = np.asarray(self.array[:, ts, ns])
+            blk = self._block(ts, ns)
             out[ns] += y[:, ts].ravel() @ blk.reshape(-1, blk.shape[2])
         return out
 
@@ -217,14 +227,55 @@ class StoredResponse(ResponseOperator):
         """Read the whole matrix into a :class:`~rotmod.response.MaterialisedResponse`."""
         from rotmod.response.materialised import MaterialisedResponse
 
+        full = np.empty(self.array.shape, dtype=self.dtype)
+        for ts, ns in self._chunks():
+            full[:, ts, ns] = self._block(ts, ns)
         return MaterialisedResponse(
-            np.asarray(self.array[...]),
+            full,
             instrument=self.instrument,
             grid=self.grid,
             time_bins=self.time_bins,
             model=self.model,
             energy=self.energy,
         )
+
+
+def read_checked(array: Any, ts: slice, ns: slice, store: Path) -> np.ndarray:
+    """Read ``P[:, ts, ns]`` and refuse what is not a profile value.
+
+    Chunks carry a CRC-32C checksum (a flipped bit or a truncated chunk fails to decode);
+    a missing chunk reads as the NaN fill value; both, and any value outside [0, 1], are
+    an error naming the store and the chunk instead of numbers that look fine.
+
+    Raises
+    ------
+    RotmodError
+    """
+    where = f"response store {str(store)!r}, chunk t {ts.start}:{ts.stop}, n {ns.start}:{ns.stop}"
+    try:
+        blk = np.asarray(array[:, ts, ns])
+    except Exception as exc:  # zarr/numcodecs raise ValueError, RuntimeError, OSError...
+        raise RotmodError(f"{where} cannot be read ({type(exc).__name__}: {exc}); the store "
+                          "is damaged: rebuild it with write_response") from exc
+    bad = ~((blk >= 0) & (blk <= 1))  # also true for NaN
+    if bad.any():
+        v = blk[bad].ravel()[0]
+        what = "is missing (reads as NaN)" if np.isnan(v) else f"holds {v:g}, not in [0, 1]"
+        raise RotmodError(f"{where} {what}; the store is damaged: rebuild it with "
+                          "write_response")
+    return blk
+
+
+def _verified(array: Any, blocks: list[Any], store: Path) -> list[int]:
+    """Indices of ``blocks`` whose chunk reads back as valid profile values."""
+    ok = []
+    for i, ((t0, t1), (n0, n1)) in enumerate(blocks):
+        try:
+            read_checked(array, slice(t0, t1), slice(n0, n1), store)
+        except RotmodError:
+            continue
+        ok.append(i)
+    return ok
 
 
 # ----------------------------------------------------------------------------- writing
@@ -276,8 +327,10 @@ def _create(partial: Path, meta: dict[str, Any], chunks: tuple[int, int]) -> Any
     g = zarr.open_group(str(partial), mode="w")
     g.attrs[_ATTR] = json.dumps(meta)
     g.attrs["complete"] = False
+    # CRC-32C after compression: every chunk is checked when it is read back.
     arr = g.create_array(
-        "P", shape=(nd, nt, nn), chunks=(nd, *chunks), dtype=meta["dtype"], fill_value=np.nan
+        "P", shape=(nd, nt, nn), chunks=(nd, *chunks), dtype=meta["dtype"], fill_value=np.nan,
+        compressors=[zarr.codecs.ZstdCodec(), zarr.codecs.Crc32cCodec()],
     )
     (partial / _DONE).mkdir()
     return arr
@@ -333,11 +386,9 @@ def write_response(
         A ``.partial`` store from an earlier run at ``path`` was started for other inputs
         (delete it or pass other ``path``).
     """
-    import zarr
 
     import rotmod
     from rotmod.response._plan import make_plan
-    from rotmod.response.parallel import _eval_block, block_grid, map_blocks
 
     path = _as_path(path)
     _check_target(path, overwrite)
@@ -356,6 +407,18 @@ def write_response(
     partial = path.with_name(path.name + _PARTIAL)
     if chunks is None:
         chunks = _default_chunks(plan.shape, plan.dtype.itemsize)
+    with PathLock(path):
+        return _write_locked(path, partial, plan, meta, chunks, overwrite, scheduler, client,
+                             progress, on_chunk)
+
+
+def _write_locked(path: Path, partial: Path, plan: Any, meta: dict[str, Any],
+                  chunks: tuple[int, ...], overwrite: bool, scheduler: Any, client: Any,
+                  progress: bool, on_chunk: Any) -> StoredResponse:
+    import zarr
+
+    from rotmod.response.parallel import _eval_block, block_grid, map_blocks
+
     if partial.exists():
         g = zarr.open_group(str(partial), mode="r+")
         old = _read_meta(g, partial)
@@ -368,7 +431,12 @@ def write_response(
     else:
         arr = _create(partial, meta, chunks)
     blocks = block_grid(plan.shape, chunks)
-    done = {int(f.name) for f in (partial / _DONE).iterdir() if f.name.isdigit()}
+    marked = {int(f.name) for f in (partial / _DONE).iterdir() if f.name.isdigit()}
+    # A marker says a chunk was written, not that it is still whole: read those back.
+    done = marked & set(_verified(arr, blocks, partial)) if marked else set()
+    if marked - done:
+        log.warning("%s: %d chunk(s) marked done are missing or damaged; recomputing them",
+                    partial, len(marked - done))
     todo = [i for i in range(len(blocks)) if i not in done]
     log.info("%d of %d chunks to compute", len(todo), len(blocks))
     n_done = len(done)
@@ -383,8 +451,18 @@ def write_response(
         n_done += 1
         if on_chunk is not None:
             on_chunk(n_done, len(blocks))
+    _check_complete(arr, blocks, partial)
     _finalise(partial, path, overwrite)
     return open_response(path)
+
+
+def _check_complete(arr: Any, blocks: list[Any], store: Path) -> None:
+    """Every chunk must read back valid before the store may be marked complete."""
+    bad = sorted(set(range(len(blocks))) - set(_verified(arr, blocks, store)))
+    if bad:
+        raise RotmodError(f"response store {str(store)!r}: {len(bad)} chunk(s) did not read "
+                          f"back valid after writing (first: {blocks[bad[0]]}); not marked "
+                          "complete")
 
 
 def save_response(
@@ -431,6 +509,7 @@ def save_response(
                 f"response must have todense() or block(), got {type(response).__name__}"
             )
         arr[:, t0:t1, n0:n1] = blk
+    _check_complete(arr, block_grid(shape, chunks), partial)
     _finalise(partial, path, overwrite)
     return open_response(path)
 
@@ -473,14 +552,27 @@ def open_response(
             p.name + _PARTIAL
         ).exists() else ""
         raise ParameterError(f"path {str(p)!r} does not exist{hint}")
-    g = zarr.open_group(str(p), mode="r")
+    try:
+        g = zarr.open_group(str(p), mode="r")
+        attrs_ok = g.attrs.get("complete") is True
+    except Exception as exc:  # unreadable zarr.json: zarr raises several kinds
+        raise RotmodError(f"response store {str(p)!r} cannot be opened ({type(exc).__name__}: "
+                          f"{exc}); rebuild it with write_response") from exc
     meta = _read_meta(g, p)
-    if g.attrs.get("complete") is not True:
+    if not attrs_ok:
         raise ParameterError(f"path {str(p)!r} is an unfinished response store")
     check_response_matches(
         meta, instrument=instrument, grid=grid, time_bins=time_bins, model=model, energy=energy
     )
-    return StoredResponse(p, g["P"], meta)
+    try:
+        arr = g["P"]
+    except Exception as exc:
+        raise RotmodError(f"response store {str(p)!r} has no readable array P ({exc}); "
+                          "rebuild it with write_response") from exc
+    if tuple(arr.shape) != tuple(meta.get("shape", arr.shape)):
+        raise RotmodError(f"response store {str(p)!r}: array P has shape {arr.shape}, its "
+                          f"metadata says {meta['shape']}; rebuild it")
+    return StoredResponse(p, arr, meta)
 
 
 def load_response(path: Any, **expected: Any) -> MaterialisedResponse:

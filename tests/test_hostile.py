@@ -175,3 +175,70 @@ def test_unicode_paths_work_in_every_command(capsys, files, tmp_path) -> None:
     # The path goes into the header percent-encoded (FITS headers are ASCII), reversibly.
     assert unquote(img.header["RESPONSE"]) == str(d / "ré.zarr")
     assert (d / "image é.png").stat().st_size > 0
+
+
+def _edit_events(src, dst, fn):
+    with fits.open(src) as h:
+        fn(h)
+        h.writeto(dst, checksum=True)
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda h: h["EVENTS"].header.set("MASK_A", "abc"), "keyword MASK_A must be a number"),
+        (lambda h: h["EVENTS"].header.set("MJDREFI", "xx"), "keyword MJDREFI must be a number"),
+        (lambda h: h["EVENTS"].header.set("TIMEUNIT", "furlong"),
+         "TIMEUNIT must be a time unit"),
+    ],
+)
+def test_event_files_from_elsewhere_with_bad_keywords(files, tmp_path, edit, match) -> None:
+    from rotmod.io import read_events
+
+    _edit_events(files / "ev.fits", tmp_path / "bad.fits", edit)
+    with pytest.raises(RotmodError, match=match):
+        read_events(tmp_path / "bad.fits")
+
+
+def test_ogip_time_keywords_are_honoured(files, tmp_path) -> None:
+    from rotmod.io import read_events
+
+    ref = read_events(files / "ev.fits")
+
+    def to_ms_with_offset(h):
+        # The same events written in milliseconds with a 100 s TIMEZERO.
+        ev = h["EVENTS"]
+        cols = ev.columns
+        t = np.asarray(ev.data["TIME"]) * 1000.0 - 100e3
+        new = fits.ColDefs([fits.Column("TIME", "D", unit="ms", array=t)]
+                           + [c for c in cols if c.name != "TIME"])
+        hdr = ev.header.copy()
+        hdr["TIMEZERO"] = (100.0, "[s]")
+        hdr["TSTART"] = ev.header["TSTART"] - 100.0
+        hdr["TSTOP"] = ev.header["TSTOP"] - 100.0
+        h["EVENTS"] = fits.BinTableHDU.from_columns(new, header=hdr, name="EVENTS")
+        g = h["GTI"]
+        g.header["TIMEZERO"] = 100.0
+        g.data["START"] -= 100.0
+        g.data["STOP"] -= 100.0
+
+    _edit_events(files / "ev.fits", tmp_path / "ms.fits", to_ms_with_offset)
+    back = read_events(tmp_path / "ms.fits")
+    # ms -> s and the 100 s offset: round-off of the two operations only (1e-9 s).
+    np.testing.assert_allclose(back.time, ref.time, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(back.gti, ref.gti, rtol=0, atol=1e-9)
+    assert back.t_start == pytest.approx(ref.t_start) and back.meta["timezero"] == 0.0
+
+
+def test_a_string_time_column_is_refused(files, tmp_path) -> None:
+    from rotmod.io import read_events
+
+    def string_time(h):
+        ev = h["EVENTS"]
+        cols = [fits.Column("TIME", "10A", array=np.char.mod("%.3f", ev.data["TIME"]))]
+        cols += [c for c in ev.columns if c.name != "TIME"]
+        h["EVENTS"] = fits.BinTableHDU.from_columns(cols, header=ev.header, name="EVENTS")
+
+    _edit_events(files / "ev.fits", tmp_path / "s.fits", string_time)
+    with pytest.raises(RotmodError, match="column TIME must be numeric"):
+        read_events(tmp_path / "s.fits")

@@ -196,6 +196,28 @@ def _key_in(header: Any, key: str, default: float, unit: u.UnitBase, path: Any) 
     return float(_to_unit(float(value), declared, unit, f"keyword {key}", path))
 
 
+def _num(header: Any, key: str, path: Any, ext: str) -> float:
+    """A required numeric keyword; a missing or non-numeric value names file, key and value."""
+    value = _key(header, key, path, ext)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise RotmodError(f"file {str(path)!r}: {ext} keyword {key} must be a number, "
+                          f"got {value!r}")
+    return float(value)
+
+
+def _time_offset(header: Any, path: Any, ext: str) -> tuple[float, u.UnitBase]:
+    """``TIMEZERO`` (s) and the time unit (``TIMEUNIT``) of a table, as OGIP defines them."""
+    unit_text = header.get("TIMEUNIT", "s")
+    try:
+        unit = u.Unit(str(unit_text), format="ogip")
+        unit.to(u.s)
+    except (ValueError, u.UnitsError):
+        raise RotmodError(f"file {str(path)!r}: {ext} keyword TIMEUNIT must be a time unit, "
+                          f"got {unit_text!r}") from None
+    zero = _num(header, "TIMEZERO", path, ext) if "TIMEZERO" in header else 0.0
+    return float((zero * unit).to_value(u.s)), unit
+
+
 def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> Instrument:
     det = _ext(hdul, "DETECTORS", path)
     ids = _col(det.data, "DET_ID", path, "DETECTORS")
@@ -205,26 +227,28 @@ def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> In
         axis=1,
     )[order].astype(float)
     mu = header.get("MASK_MU")
-    if isinstance(mu, str):
-        mu = math.inf if mu.strip().upper() == "INF" else float(mu)
+    if isinstance(mu, str) and mu.strip().upper() == "INF":
+        mu = math.inf
+    elif mu is not None:
+        mu = _num(header, "MASK_MU", path, ext)
     d = {
         "mask": {
-            "slat_width": float(_key(header, "MASK_A", path, ext)),
-            "slat_gap": float(_key(header, "MASK_B", path, ext)),
-            "thickness": float(_key(header, "MASK_H", path, ext)),
-            "height": float(_key(header, "MASK_L", path, ext)),
+            "slat_width": _num(header, "MASK_A", path, ext),
+            "slat_gap": _num(header, "MASK_B", path, ext),
+            "thickness": _num(header, "MASK_H", path, ext),
+            "height": _num(header, "MASK_L", path, ext),
             "material": str(_key(header, "MASK_MAT", path, ext)),
-            "density": float(_key(header, "MASK_RHO", path, ext)),
+            "density": _num(header, "MASK_RHO", path, ext),
             "mass_attenuation": (
-                float(header["MASK_SIG"]) if "MASK_SIG" in header else None
+                _num(header, "MASK_SIG", path, ext) if "MASK_SIG" in header else None
             ),
             "mu": None if mu is None else float(mu),
         },
         "detectors": {
-            "diameter": float(_key(header, "DET_DIAM", path, ext)),
+            "diameter": _num(header, "DET_DIAM", path, ext),
             "positions": pos.tolist(),
         },
-        "rotation_period": float(_key(header, "ROT_PER", path, ext)),
+        "rotation_period": _num(header, "ROT_PER", path, ext),
     }
     try:
         return Instrument.from_dict(d)
@@ -234,18 +258,20 @@ def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> In
 
 def _read_gti(hdul: fits.HDUList, path: Any) -> np.ndarray:
     g = _ext(hdul, "GTI", path)
-    return np.stack(
-        [_col(g.data, "START", path, "GTI"), _col(g.data, "STOP", path, "GTI")], axis=1
-    ).astype(float)
+    zero, unit = _time_offset(g.header, path, "GTI")
+    cols = [_col_in(g.data, c, path, "GTI", unit) * unit.to(u.s) + zero
+            for c in ("START", "STOP")]
+    return np.stack(cols, axis=1).astype(float)
 
 
-def _meta_from(header: Any) -> dict[str, Any]:
+def _meta_from(header: Any, path: Any) -> dict[str, Any]:
     meta = {
         "telescop": header.get("TELESCOP", "ROTMOD"),
         "instrume": header.get("INSTRUME", "RM"),
         "timesys": header.get("TIMESYS", "TT"),
-        "mjdref": float(header.get("MJDREFI", 51544)) + float(header.get("MJDREFF", 0.0)),
-        "timezero": float(header.get("TIMEZERO", 0.0)),
+        "mjdref": (_num(header, "MJDREFI", path, "header") if "MJDREFI" in header else 51544.0)
+        + (_num(header, "MJDREFF", path, "header") if "MJDREFF" in header else 0.0),
+        "timezero": _num(header, "TIMEZERO", path, "header") if "TIMEZERO" in header else 0.0,
         "creator": header.get("CREATOR", "rotmod"),
     }
     if "RM_META" in header:
@@ -344,19 +370,25 @@ def read_events(path: str | os.PathLike) -> EventList:
                     ("THETA", u.deg), ("PHI", u.deg), ("RATE", 1 / u.s), ("ENERGY", u.keV)
                 ))
             )
+        # OGIP time: TIME in TUNIT (else TIMEUNIT), plus TIMEZERO; TSTART/TSTOP likewise.
+        # The offset is applied here, so the event list holds times with TIMEZERO = 0.
+        zero, unit = _time_offset(h, path, "EVENTS")
+        scale = unit.to(u.s)
+        time = _col_in(ev.data, "TIME", path, "EVENTS", unit) * scale + zero
+        meta = {**_meta_from(h, path), "timezero": 0.0}
         try:
             return EventList(
-                np.asarray(_col(ev.data, "TIME", path, "EVENTS"), dtype=float),
+                time,
                 np.asarray(_col(ev.data, "DET_ID", path, "EVENTS"), dtype=np.int32),
                 np.asarray(_col(ev.data, "ENERGY", path, "EVENTS"), dtype=np.float32),
                 inst,
                 gti,
                 _key_in(h, "ROT_PHA0", 0.0, u.deg, path) * u.deg,
-                float(_key(h, "TSTART", path, "EVENTS")),
-                float(_key(h, "TSTOP", path, "EVENTS")),
+                _num(h, "TSTART", path, "EVENTS") * scale + zero,
+                _num(h, "TSTOP", path, "EVENTS") * scale + zero,
                 src,
                 sources,
-                _meta_from(h),
+                meta,
             )
         except RotmodError as exc:
             raise RotmodError(f"file {str(path)!r}: invalid event list: {exc}") from exc
@@ -437,7 +469,7 @@ def read_folded(path: str | os.PathLike) -> FoldedProfiles:
         try:
             return FoldedProfiles(
                 counts, ex, np.append(lo, hi[-1]) * u.deg, inst, _read_gti(hdul, path),
-                _key_in(h, "ROT_PHA0", 0.0, u.deg, path) * u.deg, _meta_from(h),
+                _key_in(h, "ROT_PHA0", 0.0, u.deg, path) * u.deg, _meta_from(h, path),
             )
         except RotmodError as exc:
             raise RotmodError(f"file {str(path)!r}: invalid folded profiles: {exc}") from exc

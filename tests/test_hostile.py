@@ -242,3 +242,24 @@ def test_a_string_time_column_is_refused(files, tmp_path) -> None:
     _edit_events(files / "ev.fits", tmp_path / "s.fits", string_time)
     with pytest.raises(RotmodError, match="column TIME must be numeric"):
         read_events(tmp_path / "s.fits")
+
+
+def test_a_response_for_another_energy_is_refused(capsys, files, tmp_path) -> None:
+    # The events are a 122 keV line; the folded file records the band; a 662 keV response
+    # (other slat attenuation) used to run silently on them.
+    f = read_folded(files / "f.fits")
+    assert f.meta["e_min"] == pytest.approx(122.0) and f.meta["e_max"] == pytest.approx(122.0)
+    grid = SkyGrid((3, 3), 1.0)
+    with pytest.raises(ParameterError, match=r"made for 662 keV.*band 122-122 keV"):
+        reconstruct(build_response(f.instrument, grid, 12, energy=662), f, max_iter=2)
+    reconstruct(build_response(f.instrument, grid, 12, energy=122), f, max_iter=2)
+    # An explicit window on the command line, with units.
+    code, err = _cli(capsys, "fold", files / "ev.fits", "-n", "12", "--band", "100:0.14MeV",
+                     "-o", tmp_path / "w.fits")
+    assert code == 0, err
+    w = read_folded(tmp_path / "w.fits")
+    assert (w.meta["e_min"], w.meta["e_max"]) == pytest.approx((100.0, 140.0))
+    assert w.counts.sum() == f.counts.sum()  # the line lies inside the window
+    code, err = _cli(capsys, "fold", files / "ev.fits", "--band", "140:100",
+                     "-o", tmp_path / "x.fits")
+    assert code == 2 and "energy_band must be (lo, hi)" in err

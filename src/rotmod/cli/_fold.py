@@ -14,6 +14,7 @@ from rotmod.cli._common import (
     count,
     save_figure,
     say,
+    to_number,
     use_agg,
 )
 
@@ -29,6 +30,9 @@ def register(sub: Any) -> None:
     p.add_argument("events", metavar="EVENTS", help="event list (FITS, from rotmod simulate)")
     p.add_argument("-n", "--bins", type=count(1), default=360, metavar="N",
                    help="mask-angle bins per rotation (default 360)")
+    p.add_argument("--band", default=None, metavar="LO:HI",
+                   help="keep events with LO <= energy <= HI (keV; each may carry a unit: "
+                   "100:0.14MeV)")
     add_output(p, help="folded profiles (FITS)")
     p.add_argument("--plot", default=None, metavar="PNG", help="also plot the count rates")
     p.set_defaults(func=run)
@@ -45,7 +49,16 @@ def run(args: argparse.Namespace) -> int:
     if args.bins < 1:
         raise UserError(f"--bins: must be >= 1, got {args.bins}")
     events = read_events(src)
-    folded = fold(events, args.bins)
+    band = None
+    if args.band is not None:
+        lo, sep, hi = args.band.partition(":")  # each a plain number (keV) or with a unit
+        try:
+            band = (to_number(lo, "keV"), to_number(hi, "keV")) if sep else None
+        except argparse.ArgumentTypeError as exc:
+            raise UserError(f"--band: must be LO:HI (keV), got {args.band!r}: {exc}") from None
+        if band is None:
+            raise UserError(f"--band: must be LO:HI (keV), got {args.band!r}")
+    folded = fold(events, args.bins, band)
     write_folded(folded, out, overwrite=args.overwrite)
     say(f"rotmod: wrote {out} ({folded.counts.shape[0]} detector(s) x {folded.n_bins} bins, "
         f"{int(folded.counts.sum())} counts)")

@@ -21,7 +21,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle, as_angle_scalar, as_int, as_scalar
+from rotmod._validate import as_angle, as_angle_scalar, as_array, as_int, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
 from rotmod.events.gti import check_gti
@@ -180,7 +180,7 @@ class FoldedProfiles:
             return np.where(self.exposure > 0, np.sqrt(self.counts) / self.exposure, np.nan)
 
 
-def fold(events: EventList, n_bins: int) -> FoldedProfiles:
+def fold(events: EventList, n_bins: int, energy_band: Any = None) -> FoldedProfiles:
     """Fold an event list modulo the rotation period into ``n_bins`` mask-angle bins.
 
     Parameters
@@ -189,11 +189,16 @@ def fold(events: EventList, n_bins: int) -> FoldedProfiles:
         The events; those outside every good-time interval are dropped (and logged).
     n_bins : int
         Number of mask-angle bins over one turn (>= 1).
+    energy_band : (float, float) or Quantity, optional
+        Keep only events with ``lo <= ENERGY <= hi`` (keV), e.g. a photopeak window.  Default:
+        every event, and the band recorded is the range of their energies.
 
     Returns
     -------
     FoldedProfiles
-        Counts per detector and bin, with the exact exposure per bin.
+        Counts per detector and bin, with the exact exposure per bin; ``meta["e_min"]`` and
+        ``meta["e_max"]`` (keV) record the energy band, which a reconstruction checks against
+        the response's energy.
     """
     if not isinstance(events, EventList):
         raise ParameterError(f"events must be an EventList, got {type(events)}")
@@ -208,6 +213,15 @@ def fold(events: EventList, n_bins: int) -> FoldedProfiles:
     good = (i >= 0) & (t <= g[np.maximum(i, 0), 1])
     if not np.all(good):
         log.warning("fold: dropped %d events outside the good-time intervals", int((~good).sum()))
+    e = np.asarray(events.energy, dtype=float)
+    if energy_band is None:
+        band = (float(e[good].min()), float(e[good].max())) if good.any() else (0.0, 0.0)
+    else:
+        band = tuple(as_array(energy_band, "energy_band", u.keV, lo=0.0, ndim=1).tolist())
+        if len(band) != 2 or not band[0] < band[1]:
+            raise ParameterError(f"energy_band must be (lo, hi) keV with lo < hi, got {band}")
+        # float32 energies: compare at float32 precision so a line at the edge is kept.
+        good &= (e >= np.float32(band[0])) & (e <= np.float32(band[1]))
     phase = events.start_phase.to_value(u.rad)
     q = _rotations(t[good], inst.rotation_period, phase)
     k = np.minimum(((q - np.floor(q)) * n).astype(np.int64), n - 1)
@@ -221,5 +235,5 @@ def fold(events: EventList, n_bins: int) -> FoldedProfiles:
         inst,
         g,
         events.start_phase,
-        {k_: v for k_, v in events.meta.items()},
+        {**events.meta, "e_min": band[0], "e_max": band[1]},
     )

@@ -122,6 +122,9 @@ def _time_cards(meta: dict[str, Any], t_start: float, t_stop: float, gti: np.nda
         ("ONTIME", ontime, "[s] sum of good time intervals"),
         ("LIVETIME", ontime, "[s] ONTIME (no dead time modelled)"),
         ("EXPOSURE", ontime, "[s] exposure"),
+    ] + [
+        (key.upper(), float(meta[key]), f"[keV] {side} of the energy band folded")
+        for key, side in (("e_min", "low edge"), ("e_max", "high edge")) if key in meta
     ]
 
 
@@ -274,6 +277,9 @@ def _meta_from(header: Any, path: Any) -> dict[str, Any]:
         "timezero": _num(header, "TIMEZERO", path, "header") if "TIMEZERO" in header else 0.0,
         "creator": header.get("CREATOR", "rotmod"),
     }
+    for key in ("E_MIN", "E_MAX"):
+        if key in header:
+            meta[key.lower()] = _key_in(header, key, 0.0, u.keV, path)
     if "RM_META" in header:
         try:
             meta.update(json.loads(header["RM_META"]))

@@ -165,6 +165,26 @@ class ReconstructionResult:
         return self.chi2 / max(self.dof, 1)
 
 
+def _check_energy_match(response: ResponseOperator, data: Any) -> None:
+    """Refuse folded counts whose energy band does not hold the response's energy.
+
+    A response is computed at one energy (the slats' attenuation there); applying it to
+    counts from another band fits the wrong instrument without any warning otherwise.
+    """
+    meta = getattr(data, "meta", None) or {}
+    e = getattr(response, "energy", None)
+    if e is None or "e_min" not in meta or "e_max" not in meta:
+        return
+    lo, hi = float(meta["e_min"]), float(meta["e_max"])
+    # Energies are stored as float32 in event files: 1e-6 relative is their precision.
+    if not lo * (1 - 1e-6) <= e <= hi * (1 + 1e-6):
+        raise ParameterError(
+            f"response: made for {e:g} keV, but the folded counts are from the band "
+            f"{lo:g}-{hi:g} keV; compute the response at an energy in the band (or fold "
+            "the events with an energy window around the response's energy)"
+        )
+
+
 def _check_bins_match(response: ResponseOperator, data: Any) -> None:
     """Refuse folded counts whose mask-angle bins are not the response's time bins.
 
@@ -276,6 +296,7 @@ class Reconstructor(ABC):
         **params: Any,
     ) -> None:
         _check_bins_match(response, data)
+        _check_energy_match(response, data)
         self.data: PoissonData = as_data(
             data, exposure=exposure, background=background, fit_background=fit_background
         )

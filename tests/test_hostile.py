@@ -263,3 +263,15 @@ def test_a_response_for_another_energy_is_refused(capsys, files, tmp_path) -> No
     code, err = _cli(capsys, "fold", files / "ev.fits", "--band", "140:100",
                      "-o", tmp_path / "x.fits")
     assert code == 2 and "energy_band must be (lo, hi)" in err
+
+
+def test_standard_model_refuses_zero_thickness_slats_that_stop_nothing() -> None:
+    from rotmod import DetectorArray, Mask
+    from rotmod.errors import ModelValidityError
+
+    inst = Instrument(Mask(4.0, 4.0, 0.0, 100.0, "lead"), DetectorArray.single(4.0))
+    with pytest.raises(ModelValidityError, match=r"thickness = 0 cm with a finite attenuation"):
+        get_model("standard").profile(inst, [2.0], [0.0], [0.0], energy=662)
+    # The paper's thin opaque mask (mu = inf) is exactly the standard model's domain.
+    thin = Instrument(Mask(4.0, 4.0, 0.0, 100.0, "lead", mu=np.inf), DetectorArray.single(4.0))
+    get_model("standard").profile(thin, [2.0], [0.0], [0.0])

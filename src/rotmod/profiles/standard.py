@@ -145,6 +145,15 @@ class StandardModel(ProfileModel):
                 f"got a = {a:g} cm, b = {b:g} cm, c = {c:g} cm; use the 'advanced' or "
                 "'exact' model for other geometries"
             )
+        m = instrument.mask
+        if m.thickness == 0 and np.isfinite(geom.mu):
+            # Zero-thickness slats of finite attenuation stop nothing, but this model's slats
+            # stop everything but `transmission`: it would describe another instrument.
+            raise ModelValidityError(
+                "the standard model's slats are opaque (up to its transmission), but "
+                "mask.thickness = 0 cm with a finite attenuation transmits every photon; give "
+                "the slats a thickness, or mu = inf for the paper's thin opaque mask"
+            )
 
     def _evaluate(
         self,

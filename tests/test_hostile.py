@@ -275,3 +275,14 @@ def test_standard_model_refuses_zero_thickness_slats_that_stop_nothing() -> None
     # The paper's thin opaque mask (mu = inf) is exactly the standard model's domain.
     thin = Instrument(Mask(4.0, 4.0, 0.0, 100.0, "lead", mu=np.inf), DetectorArray.single(4.0))
     get_model("standard").profile(thin, [2.0], [0.0], [0.0])
+
+
+def test_binary_instrument_files_and_absurd_heights(capsys, tmp_path) -> None:
+    from rotmod import Mask
+
+    binary = tmp_path / "inst.toml"
+    binary.write_bytes(bytes(range(256)))
+    code, err = _cli(capsys, "profile", "-i", binary, "-s", "6,0", "-o", tmp_path / "p.csv")
+    assert code == 2 and "Traceback" not in err and "is not a text file" in err, err
+    with pytest.raises(ParameterError, match=r"mask\.height must be <= 1e9 slat periods"):
+        Mask(4.0, 4.0, 2.0, 1e12, "lead")

@@ -61,6 +61,13 @@ class Mask:
             )
         h = as_scalar(self.thickness, "mask.thickness", cm, lo=0.0)
         L = as_scalar(self.height, "mask.height", cm, lo=0.0, lo_open=True)
+        if L > 1e9 * (a + b):
+            # The slat phase (L tan(theta) mod a + b) would keep fewer than ~6 significant
+            # digits in float64: no profile computed at such a height means anything.
+            raise ParameterError(
+                f"mask.height must be <= 1e9 slat periods (a + b = {a + b:g} cm), got "
+                f"{L:g} cm; check the unit (cm)"
+            )
         object.__setattr__(self, "slat_width", a)
         object.__setattr__(self, "slat_gap", b)
         object.__setattr__(self, "thickness", h)

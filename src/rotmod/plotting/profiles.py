@@ -81,7 +81,7 @@ def plot_profiles(
         if rax is not None:
             sig = np.where(np.asarray(mc_error) > 0, mc_error, np.nan)
             rax.plot(deg, (np.asarray(p, dtype=float) - f) / sig, **{"lw": 0.8, **style})
-    ax.set_ylabel("transmitted fraction")
+    ax.set_ylabel("transmitted fraction", fontsize=8)
     if deg.size:
         ax.set_xlim(min(0.0, deg.min()), max(360.0, deg.max()) if deg.max() > 180 else 180.0)
     ax.set_ylim(-0.02, 1.02)
@@ -92,7 +92,10 @@ def plot_profiles(
     if rax is not None:
         rax.axhspan(-1, 1, color="0.85", lw=0)
         rax.axhline(0, color="0.4", lw=0.5)
-        rax.set_ylabel("(model − MC)/σ", fontsize=7)
+        rax.set_ylabel("(P − MC)/σ", fontsize=7)
+        # One x position for both labels, so they stack instead of overlapping.
+        for a_ in (ax, rax):
+            a_.yaxis.set_label_coords(-0.07, 0.5)
         rax.set_ylim(-5, 5)
         rax.set_xlabel("mask angle ξ (deg)")
         ax.tick_params(labelbottom=False)

@@ -154,6 +154,18 @@ def test_bootstrap_is_seeded(small: Dense) -> None:
     np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("method", sorted(ALGORITHMS))
+def test_bootstrap_works_for_every_method(small: Dense, method: str) -> None:
+    # NCAR (randomised: its own seed) used to raise TypeError "multiple values for 'seed'".
+    y = np.round(20.0 * (small.forward(_point(small, 5, 5)) + 2.0))
+    kw = dict(exposure=20.0, background=2.0, uncertainty="bootstrap", n_boot=3, max_iter=5)
+    a = reconstruct(small, y, method, seed=3, **kw)
+    b = reconstruct(small, y, method, seed=3, **kw)
+    assert a.uncertainty.shape == small.grid.shape
+    assert np.all(np.isfinite(a.uncertainty)) and np.all(a.uncertainty >= 0)
+    np.testing.assert_array_equal(a.uncertainty, b.uncertainty)  # seeded, replicas included
+
+
 def test_ncar_noise_layers_seeded_and_consistent(small: Dense) -> None:
     rng = np.random.default_rng(2)
     y = rng.poisson(20.0 * (small.forward(_point(small, 4, 6, 10.0)) + 3.0))

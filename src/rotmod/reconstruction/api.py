@@ -71,9 +71,12 @@ def reconstruct(
     result = cls(response, data, **params).run()
     if uncertainty == "bootstrap":
         n_boot = as_int(n_boot, "n_boot", 2)
+        # A randomised method's own seed stays with the main run: each replica gets one
+        # drawn from the bootstrap's stream instead (passing both was issue 11's TypeError).
+        shared = {k: v for k, v in params.items() if k != "seed"}
         imgs = bootstrap_images(
             response, data, cls, n_boot=n_boot, seed=boot_ss, redraw=redraw,
-            model_counts=result.model_counts, **params,
+            model_counts=result.model_counts, **shared,
         )
         result.uncertainty = imgs.std(axis=0, ddof=1)
         result.params.update({"uncertainty": "bootstrap", "n_boot": n_boot, "redraw": redraw})

@@ -15,6 +15,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 import pytest
+from astropy.coordinates import SkyCoord
 
 from rotmod import DetectorArray, Instrument
 from rotmod.cli._common import parse_source, to_number
@@ -24,11 +25,12 @@ from rotmod.materials import PAPER_SIGMA_662
 from rotmod.montecarlo import PointSources, chord_lengths, simulate_profiles
 from rotmod.profiles import get_model, project
 from rotmod.reconstruction.metrics import localization_errors
-from rotmod.sky import SkyGrid
+from rotmod.sky import Attitude, SkyGrid
 
 INST = Instrument(Instrument.paper(sigma=PAPER_SIGMA_662).mask,
                   DetectorArray([[0.0, 0.0], [4.2, -3.0]], 4.0))
 GRID = SkyGrid((9, 9), 0.5)
+SKY = SkyCoord([11.0, 9.0] * u.deg, [21.0, 19.5] * u.deg)
 
 
 def _plain(x: Any) -> Any:
@@ -99,6 +101,10 @@ CASES: list[tuple[str, Callable[[Any], Any], float | list[float]]] = [
     ("SkyGrid.square fov", lambda v: SkyGrid.square(v, 0.5).shape, 4.0),
     ("to_tangent theta", lambda v: GRID.to_tangent(v, [20.0]), [1.5]),
     ("from_tangent x", lambda v: _plain(GRID.from_tangent(v, [0.5])[0]), [1.5]),
+    ("Attitude roll",
+     lambda v: _plain(Attitude(10.0, 20.0, v).to_instrument(SKY)[1]), 30.0),
+    ("Attitude dec", lambda v: _plain(Attitude(10.0, v, 0.0).to_instrument(SKY)[0]), 20.0),
+    ("to_sky theta", lambda v: Attitude(10.0, 20.0).to_sky(v, [40.0]).ra.deg, [5.0]),
     ("localization sources",
      lambda v: localization_errors(np.eye(9), GRID, (v, [45.0]), radius=1.0), [1.0]),
 ]

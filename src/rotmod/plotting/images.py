@@ -24,14 +24,18 @@ def plot_image(
     relative: bool = False,
     unit: str = "photons s⁻¹ per pixel (one unobstructed detector)",
 ) -> Any:
-    """Show a sky image on its grid (tangent-plane degrees) with true sources as crosses.
+    """Show a sky image on its grid with true sources as crosses.
+
+    Instrument-frame grids are drawn in tangent-plane degrees; celestial grids
+    (:class:`~rotmod.sky.CelestialGrid`) on WCS axes in RA and Dec, east left.
 
     Parameters
     ----------
     image : ndarray (ny, nx) or ReconstructionResult
     grid : SkyGrid
-    sources : (theta, phi), optional
-        True source directions (Quantities, or plain numbers in deg), marked with ``+``.
+    sources : (theta, phi) or SkyCoord, optional
+        True source directions (Quantities, or plain numbers in deg; a SkyCoord on a
+        celestial grid), marked with ``+``.
     ax : matplotlib Axes, optional
     title : str, optional
     cmap : str
@@ -52,6 +56,9 @@ def plot_image(
         raise ParameterError(f"image must have the grid's shape {grid.shape}, got {img.shape}")
     if relative and img.max() > 0:
         img = img / img.max()
+    if not hasattr(grid, "center"):
+        return _plot_celestial(img, grid, sources, ax, title, cmap, colorbar,
+                               "relative intensity" if relative else unit)
     if ax is None:
         _, ax = plt.subplots(figsize=(3, 3))
     ny, nx = grid.shape
@@ -75,6 +82,27 @@ def plot_image(
     if colorbar:
         cb = ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
         cb.set_label("relative intensity" if relative else unit, fontsize=7)
+    return ax
+
+
+def _plot_celestial(img: np.ndarray, grid: Any, sources: Any, ax: Any, title: str | None,
+                    cmap: str, colorbar: bool, label: str) -> Any:
+    """An image on a celestial grid, on WCS axes (RA, Dec; east left)."""
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig = plt.figure(figsize=(3.4, 3))
+        ax = fig.add_subplot(projection=grid.wcs())
+    im = ax.imshow(img, origin="lower", cmap=cmap, interpolation="nearest")
+    if sources is not None:  # SkyCoord of the true sources
+        ax.plot(sources.ra.deg, sources.dec.deg, "+", color="w", ms=10, mew=1.5,
+                transform=ax.get_transform("icrs"))
+    ax.set_xlabel("RA (ICRS)", fontsize=8)
+    ax.set_ylabel("Dec (ICRS)", fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=9)
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04).set_label(label, fontsize=7)
     return ax
 
 

@@ -146,13 +146,13 @@ def _restore(meta: dict[str, Any]) -> dict[str, Any]:
     from rotmod.geometry import Instrument
     from rotmod.profiles.base import MODELS, get_model
     from rotmod.response.binning import TimeBinning
-    from rotmod.sky import SkyGrid
+    from rotmod.sky import grid_from_dict
 
     out: dict[str, Any] = {"energy": meta.get("energy")}
     out["instrument"] = None if meta.get("instrument") is None else Instrument.from_dict(
         meta["instrument"]
     )
-    out["grid"] = None if meta.get("grid") is None else SkyGrid.from_dict(meta["grid"])
+    out["grid"] = None if meta.get("grid") is None else grid_from_dict(meta["grid"])
     tb = meta.get("time_bins")
     out["time_bins"] = None if tb is None else TimeBinning.from_dict(tb)
     model = None

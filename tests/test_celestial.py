@@ -1,0 +1,69 @@
+"""Images on the celestial sphere: sources at known RA/Dec, seen from pointings with rolls
+(one 8 deg from the pole), simulated, folded and reconstructed on a celestial grid, land on
+their pixel in astropy's WCS."""
+
+from __future__ import annotations
+
+import astropy.units as u
+import numpy as np
+import pytest
+from astropy.coordinates import SkyCoord
+
+from rotmod.config import load_instrument
+from rotmod.errors import ParameterError
+from rotmod.events import fold
+from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.reconstruction import reconstruct
+from rotmod.response import TimeBinning, build_response
+from rotmod.sky import Attitude, CelestialGrid, grid_from_dict
+
+
+def test_wcs_has_east_left_and_north_up() -> None:
+    g = CelestialGrid((5, 7), 0.5, 200.0, 40.0, Attitude(200.0, 40.0, 25.0))
+    w = g.wcs()
+    c = w.pixel_to_world(3, 2)
+    assert c.ra.deg == pytest.approx(200.0) and c.dec.deg == pytest.approx(40.0)
+    right, up = w.pixel_to_world(4, 2), w.pixel_to_world(3, 3)
+    # One pixel right is west (PA 270 deg), one pixel up is north (PA 0): the sky as seen.
+    assert c.position_angle(right).deg == pytest.approx(270.0, abs=1e-6)
+    assert c.position_angle(up).deg % 360 == pytest.approx(0.0, abs=1e-6)
+    assert c.separation(right).deg == pytest.approx(0.5, rel=1e-4)
+    # The centre pixel's instrument direction is the attitude's view of the centre.
+    theta = g.directions()[0].to_value(u.rad)
+    t0 = g.attitude.to_instrument(SkyCoord(200.0 * u.deg, 40.0 * u.deg))[0].to_value(u.rad)
+    assert theta[2 * 7 + 3] == pytest.approx(float(t0), abs=1e-12)
+    assert grid_from_dict(g.to_dict()) == g
+
+
+@pytest.mark.parametrize(
+    ("pointing", "source"),
+    [((150.0, 10.0, 35.0), (151.2, 11.5)),      # roll 35 deg, source 1.9 deg off axis
+     ((30.0, 82.0, -70.0), (48.0, 83.2))],      # 8 deg from the pole, source 2.6 deg off
+)
+def test_source_at_known_radec_lands_on_its_pixel(pointing, source) -> None:
+    att = Attitude(*pointing)
+    true = SkyCoord(source[0] * u.deg, source[1] * u.deg)
+    inst = load_instrument("prototype")
+    theta, phi = att.to_instrument(true)
+    src = PointSources(theta, phi, rate=30.0, energy=122.0)
+    ev = simulate_observation(inst, src, t_stop=1200.0, background=10.0, seed=5)
+    folded = fold(ev, 90)
+    # 0.5 deg pixels (a quarter of b/L) on a field centred 1 deg from the source, so the
+    # source is not on the central pixel by construction.
+    centre = true.directional_offset_by(45 * u.deg, 1.0 * u.deg)
+    grid = CelestialGrid((15, 15), 0.5, centre.ra, centre.dec, att)
+    resp = build_response(inst, grid, TimeBinning(90, "average", 2), energy=122,
+                          dtype=np.float64)
+    res = reconstruct(resp, folded, fit_background=True)
+    iy, ix = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
+    found = grid.wcs().pixel_to_world(ix, iy)
+    # Within one pixel (0.5 deg; the diagonal of a pixel is 0.71 deg).
+    assert found.separation(true).deg < 0.5 * np.sqrt(2)
+
+
+def test_bad_celestial_grid_input() -> None:
+    att = Attitude(0.0, 0.0)
+    with pytest.raises(ParameterError, match=r"grid\.dec must be <= 90 deg"):
+        CelestialGrid((3, 3), 0.5, 0.0, 91.0, att)
+    with pytest.raises(ParameterError, match=r"grid\.attitude must be an Attitude"):
+        CelestialGrid((3, 3), 0.5, 0.0, 0.0, None)

@@ -67,3 +67,23 @@ def test_bad_celestial_grid_input() -> None:
         CelestialGrid((3, 3), 0.5, 0.0, 91.0, att)
     with pytest.raises(ParameterError, match=r"grid\.attitude must be an Attitude"):
         CelestialGrid((3, 3), 0.5, 0.0, 0.0, None)
+
+
+def test_events_with_an_attitude_are_read_by_gammapy(tmp_path) -> None:
+    from rotmod.io import read_events, write_events
+
+    gammapy_data = pytest.importorskip("gammapy.data")
+    att = Attitude(266.4, -28.9, 15.0)  # Galactic centre, rolled
+    src = PointSources.from_sky(SkyCoord([266.0, 267.5] * u.deg, [-29.5, -28.0] * u.deg), att,
+                                rate=10.0, energy=122.0)
+    ev = simulate_observation(load_instrument("prototype"), src, t_stop=300.0, seed=2,
+                              attitude=att, meta={"obs_id": 42})
+    path = write_events(ev, tmp_path / "ev.fits")
+    back = read_events(path)
+    assert back.attitude == att and len(back) == len(ev)
+    g = gammapy_data.EventList.read(path)
+    assert len(g.table) == len(ev)
+    assert g.pointing_radec.separation(att.pointing).deg < 1e-9
+    assert g.table.meta["OBS_ID"] == 42
+    gti = gammapy_data.GTI.read(path)
+    assert gti.time_sum.to_value(u.s) == pytest.approx(ev.exposure)

@@ -12,6 +12,7 @@ from rotmod._validate import as_angle_scalar, as_array, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.gti import check_gti
 from rotmod.geometry import Instrument
+from rotmod.sky.attitude import Attitude
 
 if TYPE_CHECKING:
     from rotmod.montecarlo.sources import PointSources
@@ -57,6 +58,9 @@ class EventList:
     meta : dict
         Header metadata (``telescop``, ``instrume``, ``timesys``, ``mjdref``, ``timezero``,
         ...); missing keys take :data:`DEFAULT_META` values.
+    attitude : Attitude, optional
+        Where the instrument pointed (:class:`rotmod.sky.Attitude`); event files then carry
+        the pointing and sky columns that astronomy tools (gammapy) expect.
     """
 
     time: np.ndarray
@@ -70,8 +74,11 @@ class EventList:
     source: np.ndarray | None = None
     sources: PointSources | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    attitude: Any = None
 
     def __post_init__(self) -> None:
+        if self.attitude is not None and not isinstance(self.attitude, Attitude):
+            raise ParameterError(f"events.attitude must be an Attitude, got {type(self.attitude)}")
         if not isinstance(self.instrument, Instrument):
             raise ParameterError(
                 f"events.instrument must be an Instrument, got {type(self.instrument)}"
@@ -145,4 +152,5 @@ class EventList:
             self.time[mask], self.detector[mask], self.energy[mask], self.instrument,
             self.gti, self.start_phase, self.t_start, self.t_stop,
             None if self.source is None else self.source[mask], self.sources, dict(self.meta),
+            self.attitude,
         )

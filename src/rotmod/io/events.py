@@ -321,10 +321,28 @@ def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool 
     ]
     if events.source is not None:
         cols.append(fits.Column("SRC_ID", "J", array=events.source.astype(np.int32)))
+    att = events.attitude
+    if att is not None:
+        # Non-imaging detectors see the whole field: an event's best sky direction is the
+        # pointing.  The columns are what GADF readers (gammapy) require; the image comes
+        # from the folded counts, never from them.
+        n = len(events)
+        cols += [fits.Column("RA", "D", unit="deg", array=np.full(n, att.ra)),
+                 fits.Column("DEC", "D", unit="deg", array=np.full(n, att.dec))]
     ev = fits.BinTableHDU.from_columns(cols, name="EVENTS")
     h = ev.header
-    h["HDUCLASS"] = ("OGIP", "format conforms to OGIP standard")
+    h["HDUCLASS"] = ("GADF" if att is not None else "OGIP", "format conventions")
+    if att is not None:
+        h["HDUDOC"] = ("https://gamma-astro-data-formats.readthedocs.io", "format document")
+        h["HDUVERS"] = ("0.3", "format version")
+        h["HDUCLAS2"] = ("ACCEPTED", "all events recorded")
     h["HDUCLAS1"] = ("EVENTS", "extension contains events")
+    if att is not None:
+        h["OBS_ID"] = (int(events.meta.get("obs_id", 1)), "observation identifier")
+        h["RADESYS"] = ("ICRS", "celestial frame of RA/DEC")
+        h["RA_PNT"] = (att.ra, "[deg] pointing: rotation axis, RA")
+        h["DEC_PNT"] = (att.dec, "[deg] pointing: rotation axis, Dec")
+        h["ROLL_PNT"] = (att.roll, "[deg] position angle of the instrument +y axis")
     for k, v, c in _time_cards(events.meta, events.t_start, events.t_stop, events.gti):
         h[k] = (v, c)
     for k, v, c in _instrument_cards(events.instrument, events.start_phase):
@@ -365,6 +383,14 @@ def read_events(path: str | os.PathLike) -> EventList:
             raise RotmodError(f"file {str(path)!r}: EVENTS extension lacks HDUCLAS1 = 'EVENTS'")
         inst = _read_instrument(hdul, h, path, "EVENTS")
         gti = _read_gti(hdul, path)
+        attitude = None
+        if "RA_PNT" in h and "DEC_PNT" in h:
+            from rotmod.sky import Attitude
+
+            attitude = Attitude(
+                _key_in(h, "RA_PNT", 0.0, u.deg, path), _key_in(h, "DEC_PNT", 0.0, u.deg, path),
+                _key_in(h, "ROLL_PNT", 0.0, u.deg, path),
+            )
         src = None
         if ev.data is not None and "SRC_ID" in ev.data.columns.names:
             src = np.asarray(ev.data["SRC_ID"], dtype=np.int32)
@@ -395,6 +421,7 @@ def read_events(path: str | os.PathLike) -> EventList:
                 src,
                 sources,
                 meta,
+                attitude,
             )
         except RotmodError as exc:
             raise RotmodError(f"file {str(path)!r}: invalid event list: {exc}") from exc

@@ -322,6 +322,7 @@ def simulate_observation(
     chunk_size: int = DEFAULT_CHUNK,
     progress: Progress = None,
     meta: dict[str, Any] | None = None,
+    attitude: Any = None,
 ) -> EventList:
     """Simulate a time-tagged observation with the mask rotating.
 
@@ -356,6 +357,9 @@ def simulate_observation(
         simulated time (ms) done and total.
     meta : dict, optional
         Header metadata for the event list (``telescop``, ``mjdref``, ...).
+    attitude : rotmod.sky.Attitude, optional
+        Where the instrument pointed, recorded with the events (sources given on the sky go
+        through :meth:`PointSources.from_sky` with the same attitude).
 
     Returns
     -------
@@ -462,5 +466,5 @@ def simulate_observation(
     log.debug("simulate_observation: %d events in %d time pieces", time.size, pc.shape[0])
     return EventList(
         time[order], np.concatenate(out_d)[order], energy, inst, g, phase * u.rad, t0, t1,
-        src, sources, dict(meta or {}),
+        src, sources, dict(meta or {}), attitude,
     )

@@ -104,6 +104,24 @@ class PointSources:
             raise ParameterError("image must have at least one pixel with rate > 0")
         return cls(th[keep], ph[keep], img[keep], energy)
 
+    @classmethod
+    def from_sky(
+        cls, coords: Any, attitude: Any, *, rate: Any = 1.0, energy: Any = 662.0
+    ) -> PointSources:
+        """Sources at sky positions ``coords`` (SkyCoord), seen with ``attitude``.
+
+        Parameters
+        ----------
+        coords : astropy.coordinates.SkyCoord
+            Source positions (any frame astropy converts to ICRS).
+        attitude : rotmod.sky.Attitude
+            The instrument's pointing and roll.
+        rate, energy
+            As for the constructor.
+        """
+        theta, phi = attitude.to_instrument(coords)
+        return cls(np.atleast_1d(theta), np.atleast_1d(phi), rate, energy)
+
     def to_dict(self) -> dict[str, Any]:
         """Plain lists (deg, 1/s, keV) for metadata; :meth:`from_dict` reads them back."""
         return {

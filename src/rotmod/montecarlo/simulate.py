@@ -323,6 +323,7 @@ def simulate_observation(
     progress: Progress = None,
     meta: dict[str, Any] | None = None,
     attitude: Any = None,
+    resolution: Any = None,
 ) -> EventList:
     """Simulate a time-tagged observation with the mask rotating.
 
@@ -360,6 +361,9 @@ def simulate_observation(
     attitude : rotmod.sky.Attitude, optional
         Where the instrument pointed, recorded with the events (sources given on the sky go
         through :meth:`PointSources.from_sky` with the same attitude).
+    resolution : rotmod.energy.EnergyResolution, optional
+        Detector energy resolution: recorded energies are the lines smeared by it (default:
+        the true energies).
 
     Returns
     -------
@@ -463,6 +467,14 @@ def simulate_observation(
     order = np.argsort(time, kind="stable")
     src = np.concatenate(out_s)[order]
     energy = np.where(src >= 0, sources.energy[np.maximum(src, 0)], e_bkg).astype(np.float32)
+    if resolution is not None:
+        from rotmod.energy import EnergyResolution
+
+        if not isinstance(resolution, EnergyResolution):
+            raise ParameterError(f"resolution must be an EnergyResolution, got {resolution!r}")
+        # Its own stream (spawned after the transport's): the same seed gives the same
+        # events with or without smearing, only their recorded energies differ.
+        energy = resolution.smear(energy, np.random.default_rng(root.spawn(1)[0]))
     log.debug("simulate_observation: %d events in %d time pieces", time.size, pc.shape[0])
     return EventList(
         time[order], np.concatenate(out_d)[order], energy, inst, g, phase * u.rad, t0, t1,

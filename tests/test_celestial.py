@@ -122,3 +122,24 @@ def test_energy_resolution_spreads_a_line_as_stated() -> None:
     assert np.std(e) == pytest.approx(0.07 * 662.0 / FWHM_PER_SIGMA, rel=0.01)
     # The mean's standard error is sigma / 200 = 0.1 keV: 4 standard errors.
     assert np.mean(e, dtype=float) == pytest.approx(662.0, abs=0.4)
+
+
+def test_celestial_images_are_placed_by_astropy_and_gammapy(tmp_path) -> None:
+    from rotmod.io.images import read_image, write_image
+
+    maps = pytest.importorskip("gammapy.maps")
+    att = Attitude(10.0, 80.0, 20.0)
+    grid = CelestialGrid((9, 11), 0.4, 12.0, 81.0, att)
+    img = np.zeros(grid.shape)
+    img[6, 2] = 1.0
+    path = write_image(tmp_path / "c.fits", image=img, grid=grid,
+                       meta={"exposure": 1200.0, "e_min": 100.0, "e_max": 145.0})
+    back = read_image(path)
+    assert back.header["EXPOSURE"] == 1200.0 and back.header["E_MIN"] == 100.0
+    assert back.header["RADESYS"] == "ICRS" and back.header["CDELT1"] < 0  # east left
+    m = maps.Map.read(path)
+    want = grid.wcs().pixel_to_world(2, 6)
+    lon, lat = m.geom.pix_to_coord((2, 6))
+    got = SkyCoord(u.Quantity(lon, u.deg), u.Quantity(lat, u.deg))
+    assert got.separation(want).deg < 1e-9
+    assert m.geom.center_skydir.separation(SkyCoord(12.0 * u.deg, 81.0 * u.deg)).deg < 1e-9

@@ -87,8 +87,11 @@ def run(args: argparse.Namespace) -> int:
         if bar is not None:
             kw["callbacks"] = [lambda _solver, _it: bool(bar.update(1))]
         res = reconstruct(response, folded, args.method, seed=args.seed, **kw)
+    info = {k: folded.meta[k] for k in ("telescop", "instrume", "obs_id", "e_min", "e_max")
+            if k in folded.meta}
     write_image(out, res, overwrite=args.overwrite,
-                meta={"folded": str(src), "response": str(rsp)})
+                meta={"folded": str(src), "response": str(rsp), **info,
+                      "exposure": float(np.sum(folded.gti[:, 1] - folded.gti[:, 0]))})
     peak = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
     say(f"rotmod: {args.method}: {res.n_iter} iteration(s), stop: {res.stop_reason}, "
         f"chi2/dof {res.chi2_dof:.3g}, peak at pixel (iy, ix) = {tuple(int(v) for v in peak)}")

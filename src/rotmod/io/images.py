@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -132,7 +133,8 @@ def write_image(
             hdr[f"HIERARCH RECPAR {k.upper()}"] = _card_value(v)
         hdr["RECPARAM"] = json.dumps(result.params, default=str)  # whole, via CONTINUE
     for k, v in (meta or {}).items():
-        key = k.upper() if len(k) <= 8 and k.isalnum() else f"HIERARCH {k}"
+        # Short names are standard cards (EXPOSURE, E_MIN, E_MAX, TELESCOP, OBS_ID...).
+        key = k.upper() if re.fullmatch(r"[A-Za-z0-9_-]{1,8}", k) else f"HIERARCH {k}"
         hdr[key] = _card_value(v)
     hdus = [fits.PrimaryHDU(img, header=hdr)]
     if unc is not None:

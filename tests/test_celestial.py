@@ -143,3 +143,42 @@ def test_celestial_images_are_placed_by_astropy_and_gammapy(tmp_path) -> None:
     got = SkyCoord(u.Quantity(lon, u.deg), u.Quantity(lat, u.deg))
     assert got.separation(want).deg < 1e-9
     assert m.geom.center_skydir.separation(SkyCoord(12.0 * u.deg, 81.0 * u.deg)).deg < 1e-9
+
+
+def test_attitude_table_interpolates_and_round_trips(tmp_path) -> None:
+    from rotmod.sky import AttitudeTable
+
+    table = AttitudeTable([0.0, 600.0, 1200.0], [200.0, 200.8, 201.6], [-60.0, -60.4, -60.8],
+                          [10.0, 25.0, 40.0])
+    # At the samples the interpolation returns the samples (1e-9 deg: round-off).
+    mid = table.at(600.0)
+    assert mid.pointing.separation(Attitude(200.8, -60.4, 25.0).pointing).deg < 1e-9
+    assert mid.roll == pytest.approx(25.0, abs=1e-9)
+    # Half-way the pointing is half-way along the great circle.
+    a, b, h = table.at(0.0), table.at(600.0), table.at(300.0)
+    assert h.pointing.separation(a.pointing).deg == pytest.approx(
+        a.pointing.separation(b.pointing).deg / 2, rel=1e-6)
+    path = tmp_path / "aspect.ecsv"
+    table.write(path)
+    back = AttitudeTable.read(path)
+    np.testing.assert_allclose(back.roll, table.roll)
+    assert len(table.intervals(0.0, 1200.0, 100.0)) == 12
+
+
+def test_a_drifting_rolling_observation_images_with_the_drift_response() -> None:
+    from rotmod.montecarlo import simulate_drift
+    from rotmod.response.drift import drift_response
+    from rotmod.sky import AttitudeTable
+
+    # A gondola drifting 1.2 deg and turning 40 deg in 20 minutes.
+    table = AttitudeTable([0.0, 1200.0], [200.0, 201.6], [-60.0, -60.6], [10.0, 50.0])
+    steps = table.intervals(0.0, 1200.0, 100.0)
+    true = SkyCoord(201.5 * u.deg, -59.2 * u.deg)
+    inst = load_instrument("prototype")
+    ev = simulate_drift(inst, true, steps, rate=30.0, energy=122.0, background=10.0, seed=4)
+    folded = fold(ev, 90)
+    grid = CelestialGrid((15, 15), 0.5, 201.0, -59.5, table.at(600.0))
+    tb = TimeBinning(90, "average", 2)
+    res = reconstruct(drift_response(inst, grid, tb, steps, energy=122), folded)
+    iy, ix = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
+    assert grid.wcs().pixel_to_world(ix, iy).separation(true).deg < 0.5 * np.sqrt(2)

@@ -18,6 +18,7 @@ angle and source, with binomial errors) and :func:`simulate_observation` (a time
 from rotmod.montecarlo.simulate import (
     MCProfiles,
     chord_lengths,
+    simulate_drift,
     simulate_observation,
     simulate_profiles,
 )
@@ -27,6 +28,7 @@ __all__ = [
     "MCProfiles",
     "PointSources",
     "chord_lengths",
+    "simulate_drift",
     "simulate_observation",
     "simulate_profiles",
 ]

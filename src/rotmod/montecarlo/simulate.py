@@ -20,7 +20,9 @@ from rotmod.montecarlo import _transport as tr
 from rotmod.montecarlo._rng import chunk_states, seed_sequence
 from rotmod.montecarlo.sources import PointSources
 
-__all__ = ["MCProfiles", "chord_lengths", "simulate_observation", "simulate_profiles"]
+__all__ = [
+    "MCProfiles", "chord_lengths", "simulate_drift", "simulate_observation", "simulate_profiles",
+]
 
 log = logging.getLogger(__name__)
 
@@ -479,4 +481,58 @@ def simulate_observation(
     return EventList(
         time[order], np.concatenate(out_d)[order], energy, inst, g, phase * u.rad, t0, t1,
         src, sources, dict(meta or {}), attitude,
+    )
+
+
+def simulate_drift(
+    instrument: Instrument,
+    coords: Any,
+    intervals: list[tuple[float, float, Any]],
+    *,
+    rate: Any = 1.0,
+    energy: Any = 662.0,
+    background: Any = 0.0,
+    seed: Any = None,
+    resolution: Any = None,
+    meta: dict[str, Any] | None = None,
+) -> EventList:
+    """An observation of sky sources while the attitude drifts.
+
+    Each interval ``(t_lo, t_hi, attitude)`` (e.g. from
+    :meth:`rotmod.sky.AttitudeTable.intervals`) is simulated with the sources where that
+    attitude sees them; the events are joined into one list over the whole time.
+
+    Parameters
+    ----------
+    instrument : Instrument
+    coords : astropy.coordinates.SkyCoord
+        Source positions.
+    intervals : list of (float, float, Attitude)
+        Contiguous, increasing pieces of time (s) and the attitude in each.
+    rate, energy, background, resolution, meta
+        As for :class:`PointSources` and :func:`simulate_observation`.
+    seed : int or SeedSequence, optional
+        One seed for the whole observation (each interval gets its own stream).
+
+    Returns
+    -------
+    EventList
+        With the attitude of the middle interval (the file's nominal pointing).
+    """
+    if not intervals:
+        raise ParameterError("intervals must hold at least one (t_lo, t_hi, attitude)")
+    streams = seed_sequence(seed).spawn(len(intervals))
+    parts = []
+    for (lo, hi, att), ss in zip(intervals, streams, strict=True):
+        src = PointSources.from_sky(coords, att, rate=rate, energy=energy)
+        parts.append(simulate_observation(instrument, src, t_start=lo, t_stop=hi,
+                                          background=background, seed=ss,
+                                          resolution=resolution, meta=meta))
+    gti = np.concatenate([p.gti for p in parts])
+    mid = intervals[len(intervals) // 2][2]
+    return EventList(
+        np.concatenate([p.time for p in parts]), np.concatenate([p.detector for p in parts]),
+        np.concatenate([p.energy for p in parts]), instrument, gti, 0.0,
+        intervals[0][0], intervals[-1][1], np.concatenate([p.source for p in parts]),
+        parts[0].sources, dict(meta or {}), mid,
     )

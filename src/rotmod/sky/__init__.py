@@ -3,11 +3,11 @@ a true celestial WCS) and the attitude that places the instrument frame on the s
 
 from typing import Any
 
-from rotmod.sky.attitude import Attitude
+from rotmod.sky.attitude import Attitude, AttitudeTable
 from rotmod.sky.celestial import CelestialGrid
 from rotmod.sky.grid import SkyGrid
 
-__all__ = ["Attitude", "CelestialGrid", "SkyGrid", "grid_from_dict"]
+__all__ = ["Attitude", "AttitudeTable", "CelestialGrid", "SkyGrid", "grid_from_dict"]
 
 
 def grid_from_dict(d: dict[str, Any]) -> SkyGrid | CelestialGrid:

@@ -15,6 +15,7 @@ pointing, ``rotation`` = the roll), which is exact everywhere, the celestial pol
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -97,3 +98,117 @@ class Attitude:
         )
         out = offset.transform_to(ICRS())
         return SkyCoord(out.ra, out.dec, frame="icrs")
+
+
+def _axes(att: Attitude) -> tuple[np.ndarray, np.ndarray]:
+    """ICRS unit vectors of the instrument's +z (pointing) and +y axes."""
+    z = att.pointing.cartesian.xyz.value
+    y = att.to_sky(90.0, 90.0).cartesian.xyz.value
+    return np.asarray(z, dtype=float), np.asarray(y, dtype=float).ravel()
+
+
+def _from_axes(z: np.ndarray, y: np.ndarray) -> Attitude:
+    z = z / np.linalg.norm(z)
+    y = y - np.dot(y, z) * z  # Gram-Schmidt: exactly perpendicular to the pointing
+    y /= np.linalg.norm(y)
+    ra = np.degrees(np.arctan2(z[1], z[0])) % 360.0
+    dec = np.degrees(np.arcsin(np.clip(z[2], -1.0, 1.0)))
+    # Local north and east at the pointing (east = north-pole axis x pointing, normalised).
+    east = np.cross([0.0, 0.0, 1.0], z)
+    if np.linalg.norm(east) < 1e-12:  # at a pole every direction is south (or north)
+        east = np.array([-np.sin(np.radians(ra)), np.cos(np.radians(ra)), 0.0])
+    east /= np.linalg.norm(east)
+    north = np.cross(z, east)
+    roll = np.degrees(np.arctan2(np.dot(y, east), np.dot(y, north)))
+    return Attitude(ra, dec, roll)
+
+
+@dataclass(frozen=True)
+class AttitudeTable:
+    """A time-dependent attitude (a balloon's aspect solution): samples interpolated.
+
+    Between samples the pointing and the +y axis move along great circles (normalised
+    linear interpolation of the unit vectors, then re-orthogonalised): exact for the slow,
+    small steps of an aspect solution, and well defined at the poles.
+
+    Parameters
+    ----------
+    time : array_like, shape (k,)
+        Sample times (s, increasing, k >= 1).
+    ra, dec, roll : array_like, shape (k,)
+        Pointing and roll at each sample (deg if plain numbers).
+    """
+
+    time: Any
+    ra: Any
+    dec: Any
+    roll: Any
+
+    def __post_init__(self) -> None:
+        from rotmod._validate import as_array
+
+        t = as_array(self.time, "attitude.time", u.s, ndim=1)
+        if t.size == 0 or np.any(np.diff(t) <= 0):
+            raise ParameterError("attitude.time must hold at least one time, increasing")
+        cols = [np.degrees(as_angle(v, f"attitude.{n}", ndim=1))
+                for v, n in ((self.ra, "ra"), (self.dec, "dec"), (self.roll, "roll"))]
+        if any(c.shape != t.shape for c in cols):
+            raise ParameterError("attitude.ra, dec and roll must have one value per time")
+        for name, arr in zip(("time", "ra", "dec", "roll"), (t, *cols), strict=True):
+            arr = np.array(arr, dtype=float)
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+        samples = [Attitude(r, d, o) for r, d, o in zip(*cols, strict=True)]
+        object.__setattr__(self, "_axes", [_axes(a) for a in samples])
+
+    def at(self, t: float) -> Attitude:
+        """The attitude at time ``t`` (s); constant before the first and after the last."""
+        i = int(np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, self.time.size - 1))
+        if i == self.time.size - 1 or t <= self.time[0]:
+            z, y = self._axes[i if t > self.time[0] else 0]
+            return _from_axes(z, y)
+        f = (t - self.time[i]) / (self.time[i + 1] - self.time[i])
+        (z0, y0), (z1, y1) = self._axes[i], self._axes[i + 1]
+        return _from_axes((1 - f) * z0 + f * z1, (1 - f) * y0 + f * y1)
+
+    def intervals(self, t_start: float, t_stop: float, max_step: float
+                  ) -> list[tuple[float, float, Attitude]]:
+        """``(lo, hi, attitude at the middle)`` pieces of at most ``max_step`` s."""
+        from rotmod._validate import as_scalar
+
+        t0 = as_scalar(t_start, "t_start", u.s)
+        t1 = as_scalar(t_stop, "t_stop", u.s)
+        step = as_scalar(max_step, "max_step", u.s, lo=0.0, lo_open=True)
+        if not t1 > t0:
+            raise ParameterError(f"t_stop must be > t_start, got {t0:g} .. {t1:g} s")
+        n = int(np.ceil((t1 - t0) / step))
+        edges = np.linspace(t0, t1, n + 1)
+        return [(float(a), float(b), self.at(0.5 * (a + b)))
+                for a, b in itertools.pairwise(edges)]
+
+    def write(self, path: Any) -> Any:
+        """Write the samples as an ECSV table (time in s, angles in deg), atomically."""
+        from astropy.table import Table
+
+        from rotmod._atomic import atomic_path
+
+        t = Table({"time": self.time * u.s, "ra": self.ra * u.deg, "dec": self.dec * u.deg,
+                   "roll": self.roll * u.deg})
+        with atomic_path(path) as tmp:
+            t.write(tmp, format="ascii.ecsv", overwrite=True)
+        return path
+
+    @classmethod
+    def read(cls, path: Any) -> AttitudeTable:
+        """Read an attitude table (ECSV or FITS with columns time, ra, dec, roll + units)."""
+        from astropy.table import Table
+
+        try:
+            t = Table.read(path)
+            cols = {c.lower(): t[c] for c in t.colnames}
+            q = [u.Quantity(cols[k]) if cols[k].unit else np.asarray(cols[k])
+                 for k in ("time", "ra", "dec", "roll")]
+        except (OSError, ValueError, KeyError) as exc:
+            raise ParameterError(f"attitude file {str(path)!r}: needs columns time, ra, dec, "
+                                 f"roll ({type(exc).__name__}: {exc})") from exc
+        return cls(*q)

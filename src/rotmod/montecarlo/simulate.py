@@ -492,6 +492,7 @@ def simulate_drift(
     rate: Any = 1.0,
     energy: Any = 662.0,
     background: Any = 0.0,
+    background_energy: Any = None,
     seed: Any = None,
     resolution: Any = None,
     meta: dict[str, Any] | None = None,
@@ -509,7 +510,7 @@ def simulate_drift(
         Source positions.
     intervals : list of (float, float, Attitude)
         Contiguous, increasing pieces of time (s) and the attitude in each.
-    rate, energy, background, resolution, meta
+    rate, energy, background, background_energy, resolution, meta
         As for :class:`PointSources` and :func:`simulate_observation`.
     seed : int or SeedSequence, optional
         One seed for the whole observation (each interval gets its own stream).
@@ -526,7 +527,8 @@ def simulate_drift(
     for (lo, hi, att), ss in zip(intervals, streams, strict=True):
         src = PointSources.from_sky(coords, att, rate=rate, energy=energy)
         parts.append(simulate_observation(instrument, src, t_start=lo, t_stop=hi,
-                                          background=background, seed=ss,
+                                          background=background,
+                                          background_energy=background_energy, seed=ss,
                                           resolution=resolution, meta=meta))
     gti = np.concatenate([p.gti for p in parts])
     mid = intervals[len(intervals) // 2][2]

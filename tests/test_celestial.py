@@ -182,3 +182,33 @@ def test_a_drifting_rolling_observation_images_with_the_drift_response() -> None
     res = reconstruct(drift_response(inst, grid, tb, steps, energy=122), folded)
     iy, ix = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
     assert grid.wcs().pixel_to_world(ix, iy).separation(true).deg < 0.5 * np.sqrt(2)
+
+
+def test_an_extended_disc_goes_through_the_same_path() -> None:
+    from rotmod.sky.extended import disc_points, gaussian_points
+
+    centre = SkyCoord(150.0 * u.deg, 20.0 * u.deg)
+    pts = disc_points(centre, 1.5, n=200)
+    sep = centre.separation(pts).deg
+    # Equal-area sampling: all inside, and half the points inside r / sqrt(2).
+    assert sep.max() < 1.5 and np.mean(sep < 1.5 / np.sqrt(2)) == pytest.approx(0.5, abs=0.01)
+    g = centre.separation(gaussian_points(centre, 0.5, n=400)).deg
+    # A 2-D Gaussian holds 39.3 % of its flux within 1 sigma.
+    assert np.mean(g < 0.5) == pytest.approx(1 - np.exp(-0.5), abs=0.01)
+
+    att = Attitude(149.0, 19.0, 25.0)
+    inst = load_instrument("prototype")
+    grid = CelestialGrid((17, 17), 0.5, 150.0, 20.0, att)
+    resp = build_response(inst, grid, TimeBinning(90, "average", 2), energy=122,
+                          dtype=np.float64)
+    half_max_pixels = {}
+    for name, pts, n in (("disc", disc_points(centre, 1.5, n=40), 40), ("point", centre, 1)):
+        src = PointSources.from_sky(pts, att, rate=80.0 / n, energy=122.0)
+        res = reconstruct(resp, fold(simulate_observation(inst, src, t_stop=1200.0, seed=6), 90))
+        iy, ix = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
+        assert grid.wcs().pixel_to_world(ix, iy).separation(centre).deg < 0.5 * np.sqrt(2)
+        half_max_pixels[name] = int(np.sum(res.image > 0.5 * res.image.max()))
+    # The same flux spread over a 1.5 deg disc images as a wide peak on the disc (measured 5
+    # pixels above half maximum), a point source as one pixel.
+    assert half_max_pixels["point"] <= 2
+    assert half_max_pixels["disc"] >= 4

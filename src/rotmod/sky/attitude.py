@@ -21,7 +21,7 @@ from typing import Any
 
 import astropy.units as u
 import numpy as np
-from astropy.coordinates import ICRS, SkyCoord, SkyOffsetFrame
+from astropy.coordinates import ICRS, CartesianRepresentation, SkyCoord, SkyOffsetFrame
 
 from rotmod._validate import as_angle, as_angle_scalar
 from rotmod.errors import ParameterError
@@ -108,19 +108,14 @@ def _axes(att: Attitude) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _from_axes(z: np.ndarray, y: np.ndarray) -> Attitude:
+    """The attitude whose pointing is ``z`` and whose +y axis is ``y`` (ICRS unit vectors)."""
     z = z / np.linalg.norm(z)
     y = y - np.dot(y, z) * z  # Gram-Schmidt: exactly perpendicular to the pointing
     y /= np.linalg.norm(y)
-    ra = np.degrees(np.arctan2(z[1], z[0])) % 360.0
-    dec = np.degrees(np.arcsin(np.clip(z[2], -1.0, 1.0)))
-    # Local north and east at the pointing (east = north-pole axis x pointing, normalised).
-    east = np.cross([0.0, 0.0, 1.0], z)
-    if np.linalg.norm(east) < 1e-12:  # at a pole every direction is south (or north)
-        east = np.array([-np.sin(np.radians(ra)), np.cos(np.radians(ra)), 0.0])
-    east /= np.linalg.norm(east)
-    north = np.cross(z, east)
-    roll = np.degrees(np.arctan2(np.dot(y, east), np.dot(y, north)))
-    return Attitude(ra, dec, roll)
+    pointing = SkyCoord(ICRS(CartesianRepresentation(*z)))
+    # +y seen from the pointing: a direction 90 deg away at the roll's position angle.
+    roll = pointing.position_angle(SkyCoord(ICRS(CartesianRepresentation(*y))))
+    return Attitude(pointing.ra, pointing.dec, roll)
 
 
 @dataclass(frozen=True)

@@ -212,3 +212,32 @@ def test_an_extended_disc_goes_through_the_same_path() -> None:
     # pixels above half maximum), a point source as one pixel.
     assert half_max_pixels["point"] <= 2
     assert half_max_pixels["disc"] >= 4
+
+
+def test_a_power_law_source_is_attenuated_band_by_band() -> None:
+    from rotmod import Instrument, get_model
+    from rotmod.energy import PowerLaw
+
+    spec = PowerLaw(2.0, 100.0, 1000.0)
+    src = PointSources.with_spectrum([3.0], [20.0], 200.0, spec, n_bands=6)
+    inst = Instrument.paper(h=0.5)  # thin lead: transmission rises from ~0 to ~60 %
+    ev = simulate_observation(inst, src, t_stop=600.0, seed=12)
+    band = src.band[ev.source]
+    assert np.all((ev.energy >= band[:, 0] * (1 - 1e-6)) & (ev.energy <= band[:, 1] * (1 + 1e-6)))
+    # Expected events per band: rate x time x the exact model's mean over a rotation at the
+    # band's centre energy; Poisson chi-square over the 6 bands (99.9 % point of chi2(6): 22).
+    xi = (np.arange(720) + 0.5) * 0.5
+    counts = np.bincount(ev.source, minlength=len(src))
+    chi2 = 0.0
+    for k in range(len(src)):
+        p = get_model("exact").profile(inst, src.theta[k:k + 1], src.phi[k:k + 1], xi,
+                                       energy=src.energy[k]).mean()
+        expected = src.rate[k] * 600.0 * p
+        chi2 += (counts[k] - expected) ** 2 / expected
+    assert chi2 < 22.5
+    # Within a band the energies follow the power law: for index 2 the fraction below the
+    # geometric mean of [lo, hi] is sqrt(hi/lo) / (1 + sqrt(hi/lo)) (3 sigma of 0.01 here).
+    lo, hi = src.band[0]
+    e0 = ev.energy[ev.source == 0]
+    r = np.sqrt(hi / lo)
+    assert np.mean(e0 < np.sqrt(lo * hi)) == pytest.approx(r / (1 + r), abs=0.03)

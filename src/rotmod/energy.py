@@ -1,4 +1,10 @@
-"""Detector energy resolution: how a line's photons spread in measured energy.
+"""Source spectra and detector energy resolution.
+
+A :class:`PowerLaw` source is simulated as a few narrow bands: the slats' attenuation is
+evaluated at each band's centre (it varies slowly with energy), and each photon's true
+energy is drawn from the power law within its band.
+
+Resolution: how a line's photons spread in measured energy.
 
 A scintillator measures a photopeak photon's energy with a Gaussian spread whose relative
 width falls with energy; the common parametrisation, and NaI(Tl)'s usual numbers, are
@@ -20,7 +26,7 @@ import numpy as np
 
 from rotmod._validate import as_array, as_scalar
 
-__all__ = ["EnergyResolution"]
+__all__ = ["EnergyResolution", "PowerLaw"]
 
 #: FWHM = 2 sqrt(2 ln 2) sigma for a Gaussian.
 FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
@@ -67,3 +73,54 @@ class EnergyResolution:
         measured = rng.normal(e, self.fwhm(e) / FWHM_PER_SIGMA)
         # A pulse height is positive; the tail below 0 is ~10 sigma away for any real detector.
         return np.maximum(measured, np.finfo(np.float32).tiny).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class PowerLaw:
+    """A photon power law ``dN/dE ~ E^-index`` between ``e_min`` and ``e_max`` (keV).
+
+    Parameters
+    ----------
+    index : float
+        Photon index (2 for a typical hard X-ray source).
+    e_min, e_max : float or Quantity
+        Energy range (keV), ``0 < e_min < e_max``.
+    """
+
+    index: float
+    e_min: Any
+    e_max: Any
+
+    def __post_init__(self) -> None:
+        from rotmod.errors import ParameterError
+
+        object.__setattr__(self, "index", as_scalar(self.index, "spectrum.index"))
+        lo = as_scalar(self.e_min, "spectrum.e_min", u.keV, lo=0.0, lo_open=True)
+        hi = as_scalar(self.e_max, "spectrum.e_max", u.keV, lo=0.0, lo_open=True)
+        if not lo < hi:
+            raise ParameterError(f"spectrum.e_min must be < e_max, got {lo:g} and {hi:g} keV")
+        object.__setattr__(self, "e_min", lo)
+        object.__setattr__(self, "e_max", hi)
+
+    def _cdf_inverse(self, lo: np.ndarray, hi: np.ndarray, q: np.ndarray) -> np.ndarray:
+        g = 1.0 - self.index
+        if abs(g) < 1e-12:  # index 1: uniform in log E
+            return lo * (hi / lo) ** q
+        return (lo**g + q * (hi**g - lo**g)) ** (1.0 / g)
+
+    def bands(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``n`` log-spaced bands: ``(lo, hi, photon fraction)`` each of shape (n,)."""
+        from rotmod._validate import as_int
+
+        n = as_int(n, "n_bands", 1)
+        edges = np.geomspace(self.e_min, self.e_max, n + 1)
+        g = 1.0 - self.index
+        prim = np.log(edges) if abs(g) < 1e-12 else edges**g / g
+        frac = np.diff(prim) / (prim[-1] - prim[0])
+        return edges[:-1], edges[1:], frac
+
+    def draw(self, lo: Any, hi: Any, rng: np.random.Generator) -> np.ndarray:
+        """True energies (keV) following the power law within ``[lo, hi]`` (element-wise)."""
+        lo_ = np.asarray(lo, dtype=float)
+        hi_ = np.asarray(hi, dtype=float)
+        return self._cdf_inverse(lo_, hi_, rng.random(np.broadcast(lo_, hi_).shape))

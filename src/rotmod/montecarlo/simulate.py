@@ -469,6 +469,13 @@ def simulate_observation(
     order = np.argsort(time, kind="stable")
     src = np.concatenate(out_s)[order]
     energy = np.where(src >= 0, sources.energy[np.maximum(src, 0)], e_bkg).astype(np.float32)
+    if sources.spectrum is not None and np.any(src >= 0):
+        # True energies within each source's band (the attenuation used its centre); a
+        # stream of its own, spawned after the transport's.
+        s = src[src >= 0]
+        energy[src >= 0] = sources.spectrum.draw(
+            sources.band[s, 0], sources.band[s, 1], np.random.default_rng(root.spawn(1)[0])
+        ).astype(np.float32)
     if resolution is not None:
         from rotmod.energy import EnergyResolution
 

@@ -36,6 +36,11 @@ class PointSources:
     energy : array_like or Quantity, shape (n,) or scalar
         Photon energy of each source (keV), > 0 (lines; the mask attenuation is evaluated
         at it).
+    spectrum : PowerLaw, optional
+        With ``band``: each source is one band of this spectrum (see :meth:`with_spectrum`).
+    band : array_like, shape (n, 2), optional
+        Each source's energy band (keV): its photons' true energies follow ``spectrum``
+        within it, while ``energy`` (the band centre) sets the attenuation.
 
     Examples
     --------
@@ -48,6 +53,8 @@ class PointSources:
     phi: np.ndarray
     rate: Any = 1.0
     energy: Any = 662.0
+    spectrum: Any = None
+    band: Any = None
 
     def __post_init__(self) -> None:
         th = as_angle(self.theta, "theta", lo=0.0, hi=90.0, hi_open=True, ndim=1)
@@ -66,6 +73,34 @@ class PointSources:
             arr.flags.writeable = False
             # Angles leave as Quantities so that passing them on can't be misread as degrees.
             object.__setattr__(self, name, arr * u.rad if name in ("theta", "phi") else arr)
+        if (self.spectrum is None) != (self.band is None):
+            raise ParameterError("spectrum and band go together: give both or neither")
+        if self.band is not None:
+            band = as_array(self.band, "band", u.keV, lo=0.0, lo_open=True)
+            if band.shape != (n, 2) or np.any(band[:, 0] >= band[:, 1]):
+                raise ParameterError(f"band must be ({n}, 2) increasing keV pairs, got "
+                                     f"shape {band.shape}")
+            object.__setattr__(self, "band", band)
+
+    @classmethod
+    def with_spectrum(
+        cls, theta: Any, phi: Any, rate: Any, spectrum: Any, n_bands: int = 8
+    ) -> PointSources:
+        """Sources of total photon ``rate`` each, with a :class:`~rotmod.energy.PowerLaw`.
+
+        Each direction becomes ``n_bands`` sources, one per log-spaced band, with the
+        band's share of the rate and its geometric-mean energy for the attenuation.
+        """
+        th = np.atleast_1d(as_angle(theta, "theta"))
+        ph = np.broadcast_to(np.atleast_1d(as_angle(phi, "phi")), th.shape)
+        r = np.broadcast_to(np.atleast_1d(as_array(rate, "rate", 1 / u.s, lo=0.0)), th.shape)
+        lo, hi, frac = spectrum.bands(n_bands)
+        k = lo.size
+        return cls(
+            np.repeat(th, k) * u.rad, np.repeat(ph, k) * u.rad,
+            (r[:, None] * frac[None, :]).ravel(), np.tile(np.sqrt(lo * hi), th.size),
+            spectrum, np.tile(np.stack([lo, hi], axis=1), (th.size, 1)),
+        )
 
     def __len__(self) -> int:
         return self.theta.size
@@ -116,10 +151,14 @@ class PointSources:
             Source positions (any frame astropy converts to ICRS).
         attitude : rotmod.sky.Attitude
             The instrument's pointing and roll.
-        rate, energy
-            As for the constructor.
+        rate : float or array_like
+            Photons/s per source.
+        energy : float, array_like or PowerLaw
+            Lines (keV), or a spectrum (:meth:`with_spectrum`).
         """
         theta, phi = attitude.to_instrument(coords)
+        if hasattr(energy, "bands"):  # a spectrum
+            return cls.with_spectrum(theta, phi, rate, energy)
         return cls(np.atleast_1d(theta), np.atleast_1d(phi), rate, energy)
 
     def to_dict(self) -> dict[str, Any]:

@@ -241,3 +241,46 @@ def test_a_power_law_source_is_attenuated_band_by_band() -> None:
     e0 = ev.energy[ev.source == 0]
     r = np.sqrt(hi / lo)
     assert np.mean(e0 < np.sqrt(lo * hi)) == pytest.approx(r / (1 + r), abs=0.03)
+
+
+def test_healpix_wide_field_images_and_equals_explicit_directions(tmp_path) -> None:
+    from astropy.table import Table
+
+    from rotmod.io.images import write_image
+    from rotmod.response import MatrixFreeResponse
+    from rotmod.sky import HealpixGrid
+
+    att = Attitude(300.0, 40.0, -15.0)
+    # A 45 deg cone (beyond the tangent grids' comfort) at nside 32 (1.8 deg pixels).
+    grid = HealpixGrid(32, 300.0, 40.0, 45.0, att)
+    assert grid.size > 1500 and grid_from_dict(grid.to_dict()) == grid
+    inst = load_instrument("prototype")
+    tb = TimeBinning(60)
+
+    class Explicit:  # the same pixel directions handed over as a plain list
+        size, shape = grid.size, grid.shape
+
+        @staticmethod
+        def directions():
+            return grid.directions()
+
+        @staticmethod
+        def to_dict():
+            return {"kind": "explicit"}
+
+    a = MatrixFreeResponse(inst, grid, tb, energy=122, dtype=np.float64)
+    b = MatrixFreeResponse(inst, Explicit(), tb, energy=122, dtype=np.float64)
+    x = np.random.default_rng(0).random(grid.size)
+    np.testing.assert_array_equal(a.forward(x), b.forward(x))
+
+    true = SkyCoord(310.0 * u.deg, 55.0 * u.deg)  # 18 deg off axis
+    src = PointSources.from_sky(true, att, rate=30.0, energy=122.0)
+    folded = fold(simulate_observation(inst, src, t_stop=1200.0, background=5.0, seed=3), 60)
+    res = reconstruct(build_response(inst, grid, tb, energy=122, dtype=np.float64), folded)
+    brightest = grid.sky_coords()[int(np.argmax(res.image))]
+    # Within one HEALPix pixel (1.8 deg across at nside 32).
+    assert brightest.separation(true).deg < 1.9
+    path = write_image(tmp_path / "hp.fits", res, meta={"exposure": 1200.0})
+    t = Table.read(path, hdu="HEALPIX")
+    assert t.meta["NSIDE"] == 32 and t.meta["INDXSCHM"] == "EXPLICIT"
+    np.testing.assert_array_equal(t["PIXEL"], grid.pixels)

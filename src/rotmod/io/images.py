@@ -117,7 +117,9 @@ def write_image(
     if img.shape != tuple(g.shape):
         raise ParameterError(f"image must have the grid's shape {g.shape}, got {img.shape}")
     unc = uncertainty if uncertainty is not None else getattr(result, "uncertainty", None)
-    hdr = g.wcs().to_header()
+    # HEALPix grids have no WCS: their image is a table of explicit pixel indices.
+    healpix = hasattr(g, "pixels")
+    hdr = fits.Header() if healpix else g.wcs().to_header()
     hdr["BUNIT"] = (bunit, "sky units of the response")
     hdr["ORIGIN"] = "rotmod"
     if result is not None:
@@ -136,8 +138,11 @@ def write_image(
         # Short names are standard cards (EXPOSURE, E_MIN, E_MAX, TELESCOP, OBS_ID...).
         key = k.upper() if re.fullmatch(r"[A-Za-z0-9_-]{1,8}", k) else f"HIERARCH {k}"
         hdr[key] = _card_value(v)
-    hdus = [fits.PrimaryHDU(img, header=hdr)]
-    if unc is not None:
+    if healpix:
+        hdus = [fits.PrimaryHDU(header=hdr), _healpix_hdu(g, img, unc, bunit)]
+    else:
+        hdus = [fits.PrimaryHDU(img, header=hdr)]
+    if unc is not None and not healpix:
         u_arr = np.asarray(unc, dtype=float)
         if u_arr.shape != img.shape:
             raise ParameterError(
@@ -159,6 +164,30 @@ def write_image(
     with atomic_path(p) as tmp:
         fits.HDUList(hdus).writeto(tmp, overwrite=True, checksum=True)
     return p
+
+
+def _healpix_hdu(grid: Any, img: np.ndarray, unc: Any, bunit: str) -> Any:
+    """A HEALPix FITS table (explicit indexing, the convention healpy and gammapy read)."""
+    from astropy.io import fits
+
+    cols = [fits.Column("PIXEL", "K", array=np.asarray(grid.pixels, dtype=np.int64)),
+            fits.Column("INTENSITY", "D", unit=bunit, array=img.ravel())]
+    if unc is not None:
+        u_arr = np.asarray(unc, dtype=float)
+        if u_arr.shape != img.shape:
+            raise ParameterError(
+                f"uncertainty must have the image's shape {img.shape}, got {u_arr.shape}"
+            )
+        cols.append(fits.Column("UNCERTAINTY", "D", unit=bunit, array=u_arr.ravel()))
+    tab = fits.BinTableHDU.from_columns(cols, name="HEALPIX")
+    h = tab.header
+    h["PIXTYPE"] = ("HEALPIX", "HEALPix pixelisation")
+    h["ORDERING"] = (grid.order.upper(), "pixel ordering scheme")
+    h["NSIDE"] = (grid.nside, "HEALPix resolution parameter")
+    h["INDXSCHM"] = ("EXPLICIT", "pixel indices in the PIXEL column")
+    h["OBJECT"] = ("PARTIAL", "a cone, not the whole sky")
+    h["COORDSYS"] = ("C", "celestial (ICRS)")
+    return tab
 
 
 def read_image(path: str | os.PathLike[str]) -> FitsImage:

@@ -1,0 +1,117 @@
+"""All-sky and wide-field grids on HEALPix (equal-area pixels, any field size).
+
+A :class:`HealpixGrid` holds the HEALPix pixels (ICRS, ``nested`` or ``ring`` order) within a
+cone; through an :class:`~rotmod.sky.attitude.Attitude` each pixel centre is an instrument
+direction, so every response operator takes it like any other grid.  Pixels at or beyond
+90 deg from the rotation axis cannot be seen (the detectors face the sky) and are refused.
+Images on it are written as HEALPix FITS tables with explicit pixel indices
+(:func:`rotmod.io.images.write_image`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import astropy.units as u
+import numpy as np
+from astropy.coordinates import ICRS, SkyCoord
+
+from rotmod._validate import as_angle_scalar, as_int
+from rotmod.errors import ParameterError
+from rotmod.limits import check_memory
+from rotmod.sky.attitude import Attitude
+
+__all__ = ["HealpixGrid"]
+
+
+@dataclass(frozen=True)
+class HealpixGrid:
+    """The HEALPix pixels of ``nside`` within ``radius`` of ``(ra, dec)``.
+
+    Parameters
+    ----------
+    nside : int
+        HEALPix resolution (a power of 2); pixels are about ``58.6 deg / nside`` across.
+    ra, dec : float or Quantity
+        Centre of the cone (ICRS; deg if plain).
+    radius : float or Quantity
+        Cone radius (deg if plain), < 90 deg so that every pixel is in front of the array
+        when the cone is centred on the pointing.
+    attitude : Attitude
+    order : {"nested", "ring"}
+    """
+
+    nside: int
+    ra: Any
+    dec: Any
+    radius: Any
+    attitude: Attitude
+    order: str = "nested"
+
+    def __post_init__(self) -> None:
+        nside = as_int(self.nside, "grid.nside", 1)
+        if nside & (nside - 1):
+            raise ParameterError(f"grid.nside must be a power of 2, got {nside}")
+        if self.order not in ("nested", "ring"):
+            raise ParameterError(f"grid.order must be 'nested' or 'ring', got {self.order!r}")
+        if not isinstance(self.attitude, Attitude):
+            raise ParameterError(f"grid.attitude must be an Attitude, got {type(self.attitude)}")
+        object.__setattr__(self, "nside", nside)
+        for name, lo, hi, hi_open in (("ra", None, None, False), ("dec", -90.0, 90.0, False),
+                                      ("radius", 0.0, 90.0, True)):
+            v = as_angle_scalar(getattr(self, name), f"grid.{name}", lo=lo, hi=hi,
+                                hi_open=hi_open, lo_open=name == "radius")
+            object.__setattr__(self, name, float(np.degrees(v)))
+        hp = self._healpix()
+        # Cone area / pixel area, then ~10 values per pixel.
+        n_est = (1 - np.cos(np.radians(self.radius))) / (1 - np.cos(hp.pixel_resolution))
+        check_memory(80.0 * n_est, f"HEALPix nside {nside} pixels within {self.radius:g} deg",
+                     hint="use a smaller nside or radius")
+        pix = hp.cone_search_skycoord(SkyCoord(self.ra * u.deg, self.dec * u.deg),
+                                      self.radius * u.deg)
+        pix = np.sort(np.asarray(pix, dtype=np.int64))
+        pix.flags.writeable = False
+        object.__setattr__(self, "pixels", pix)
+        theta, _ = self.directions()
+        if np.any(theta.to_value(u.deg) >= 90.0):
+            raise ParameterError(
+                "grid: some pixels are 90 deg or more from the rotation axis (behind the "
+                "detectors); centre the cone nearer the pointing or shrink grid.radius"
+            )
+
+    def _healpix(self) -> Any:
+        import astropy_healpix as hp
+        return hp.HEALPix(nside=self.nside, order=self.order, frame=ICRS())
+
+    @property
+    def size(self) -> int:
+        """Number of pixels ``n_sky``."""
+        return int(self.pixels.size)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(1, n_sky)``: a HEALPix image is a list of pixels."""
+        return (1, self.size)
+
+    def sky_coords(self) -> SkyCoord:
+        """Pixel centres on the sky (ICRS), in the order of :attr:`pixels`."""
+        c = self._healpix().healpix_to_skycoord(self.pixels)
+        return SkyCoord(c.ra, c.dec, frame="icrs")
+
+    def directions(self) -> tuple[u.Quantity, u.Quantity]:
+        """Zenith and azimuth (Quantities, rad) of every pixel centre in the instrument frame."""
+        return self.attitude.to_instrument(self.sky_coords())
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain description (deg) for metadata; :meth:`from_dict` reads it back."""
+        a = self.attitude
+        return {"kind": "healpix", "nside": self.nside, "order": self.order, "ra": self.ra,
+                "dec": self.dec, "radius": self.radius,
+                "attitude": {"ra": a.ra, "dec": a.dec, "roll": a.roll}}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> HealpixGrid:
+        """Inverse of :meth:`to_dict`."""
+        return cls(d["nside"], d["ra"], d["dec"], d["radius"], Attitude(**d["attitude"]),
+                   d.get("order", "nested"))

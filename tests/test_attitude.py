@@ -61,3 +61,14 @@ def test_bad_input_names_the_parameter() -> None:
         Attitude(0.0, 0.0).to_instrument((1.0, 2.0))
     with pytest.raises(ParameterError, match=r"attitude\.roll must be in units of deg"):
         Attitude(0.0, 0.0, 3 * u.cm)
+
+
+def test_roll_adds_to_the_mask_angle_on_the_sky() -> None:
+    # At mask angle xi the slats run along (sin xi, cos xi) in the lab (u = x cos xi - y sin
+    # xi is constant along them); on the sky that direction has position angle roll + xi.
+    att = Attitude(120.0, 30.0, 25.0)
+    for xi in (0.0, 30.0, 100.0, 250.0):
+        x = np.radians(xi)
+        along = att.to_sky(1.0, np.degrees(np.arctan2(np.cos(x), np.sin(x))))
+        pa = att.pointing.position_angle(along).deg
+        assert (pa - 25.0 - xi + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-6)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import distributed
 import numpy as np
 import pytest
 
@@ -12,8 +13,6 @@ from rotmod.response import MatrixFreeResponse, build_response
 from rotmod.response.parallel import get_client
 from rotmod.response.stored import write_response
 from rotmod.sky import SkyGrid
-
-distributed = pytest.importorskip("distributed")
 
 
 @pytest.fixture(scope="module")

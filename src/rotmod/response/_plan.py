@@ -27,7 +27,7 @@ from rotmod.profiles.base import (
 )
 from rotmod.response.binning import TimeBinning
 
-__all__ = ["ResponsePlan", "make_plan"]
+__all__ = ["ResponsePlan", "check_response_inputs", "make_plan"]
 
 
 def _select_detectors(instrument: Instrument, detectors: Any) -> Instrument:
@@ -124,6 +124,37 @@ class ResponsePlan:
         return out
 
 
+def check_response_inputs(
+    instrument: Instrument,
+    grid: Any,
+    time_bins: Any,
+    energy: Any,
+    *,
+    dtype: Any,
+    detectors: Any,
+) -> tuple[Instrument, TimeBinning, float | None, np.dtype]:
+    """Validate what every response operator is computed from.
+
+    Returns the instrument (restricted to ``detectors``), the time binning, the energy (keV
+    or ``None``) and the dtype.
+
+    Raises
+    ------
+    ParameterError
+    """
+    if not isinstance(instrument, Instrument):
+        raise ParameterError(f"instrument must be an Instrument, got {type(instrument).__name__}")
+    if not hasattr(grid, "directions") or not hasattr(grid, "size"):
+        raise ParameterError(
+            f"grid must be a sky grid (e.g. SkyGrid) with directions(), got {type(grid).__name__}"
+        )
+    tb = TimeBinning.coerce(time_bins)
+    dt = as_float_dtype(dtype)
+    inst = _select_detectors(instrument, detectors)
+    e = None if energy is None else as_scalar(energy, "energy", _kev(), lo=0.0, lo_open=True)
+    return inst, tb, e, dt
+
+
 def make_plan(
     instrument: Instrument,
     grid: Any,
@@ -142,17 +173,10 @@ def make_plan(
     ------
     ParameterError, MaterialError, ModelValidityError
     """
-    if not isinstance(instrument, Instrument):
-        raise ParameterError(f"instrument must be an Instrument, got {type(instrument).__name__}")
-    if not hasattr(grid, "directions") or not hasattr(grid, "size"):
-        raise ParameterError(
-            f"grid must be a sky grid (e.g. SkyGrid) with directions(), got {type(grid).__name__}"
-        )
-    tb = TimeBinning.coerce(time_bins)
+    inst, tb, e, dt = check_response_inputs(
+        instrument, grid, time_bins, energy, dtype=dtype, detectors=detectors
+    )
     mdl = get_model(model)
-    dt = as_float_dtype(dtype)
-    inst = _select_detectors(instrument, detectors)
-    e = None if energy is None else as_scalar(energy, "energy", _kev(), lo=0.0, lo_open=True)
     # Pixel directions and the projected geometry: ~(2 n_det + 6) float64 per pixel.
     check_memory(8.0 * grid.size * (2 * len(inst.detectors) + 6),
                  f"projecting {grid.size} sky pixels for {len(inst.detectors)} detectors",

@@ -1,13 +1,21 @@
-"""Square tangent-plane (gnomonic) sky grids around the pointing axis.
+"""Square tangent-plane (gnomonic) sky grids in the instrument frame, tangent anywhere.
 
 The instrument frame is drawn on the sky as if the pointing axis (lab +z) were at
-RA = Dec = 0 with the lab +x axis toward +RA and +y toward +Dec.  A direction at zenith
-``theta`` and azimuth ``phi`` has tangent-plane coordinates (degrees)
+RA = Dec = 0 with the lab +x axis toward +RA and +y toward +Dec, i.e. a lab vector
+``(x, y, z)`` is the celestial vector ``(X, Y, Z) = (z, x, y)``.  By default the projection is
+tangent at the axis: a direction at zenith ``theta`` and azimuth ``phi`` has tangent-plane
+coordinates (degrees)
 
-    x = (180/pi) tan(theta) cos(phi),   y = (180/pi) tan(theta) sin(phi),
+    x = (180/pi) tan(theta) cos(phi),   y = (180/pi) tan(theta) sin(phi).
 
-which are exactly the FITS ``TAN`` intermediate world coordinates, so the WCS written with
-the images places every pixel where the response computed it.
+A grid may instead be tangent at any direction ``(theta0, phi0)`` (``tangent=``), e.g. the
+centre of a field 48 deg off axis, where an axis-tangent grid would stretch its pixels by
+``1/cos^2 theta0`` radially.  With ``n0`` the tangent direction and ``e_x``, ``e_y`` the unit
+vectors toward +RA and +Dec there, the pixel at tangent-plane coordinates ``(x, y)`` (rad)
+looks along ``n0 + x e_x + y e_y`` (the re-centred gnomonic projection).  These are exactly
+the FITS ``TAN`` intermediate world coordinates about ``CRVAL`` = the tangent point, so the
+WCS written with the images places every pixel where the response computed it (tested
+against astropy).
 """
 
 from __future__ import annotations
@@ -40,12 +48,17 @@ class SkyGrid:
     pixel_size : float or Quantity
         Pixel side (deg if a plain number), > 0.
     center : (float, float) or Quantity
-        Tangent-plane coordinates ``(x, y)`` of the field centre (deg); default the axis.
+        Tangent-plane coordinates ``(x, y)`` of the field centre (deg); default the tangent
+        point.
+    tangent : (float, float) or Quantity
+        Instrument direction ``(theta, phi)`` (deg) where the projection plane touches the
+        sky (``0 <= theta < 90``); default the rotation axis.
     """
 
     shape: tuple[int, int]
     pixel_size: float
     center: tuple[float, float] = (0.0, 0.0)
+    tangent: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         try:
@@ -60,9 +73,36 @@ class SkyGrid:
         cx = as_scalar(self.center[0], "grid.center[0]", u.deg)
         cy = as_scalar(self.center[1], "grid.center[1]", u.deg)
         object.__setattr__(self, "center", (cx, cy))
+        try:
+            t_theta, t_phi = self.tangent
+        except (TypeError, ValueError) as exc:
+            raise ParameterError(
+                f"grid.tangent must be (theta, phi) in deg, got {self.tangent!r}") from exc
+        t_theta = float(np.degrees(as_angle(t_theta, "grid.tangent[0]", lo=0.0, hi=90.0,
+                                            hi_open=True)))
+        t_phi = float(np.degrees(as_angle(t_phi, "grid.tangent[1]")))
+        object.__setattr__(self, "tangent", (t_theta, t_phi))
         half = np.degrees(np.arctan(1e3))  # theta < 89.94 deg: keep tan(theta) finite
         if max(abs(cx) + nx * pix / 2, abs(cy) + ny * pix / 2) > 180 / np.pi * 1e3:
             raise ParameterError(f"grid extends beyond theta = {half:.2f} deg; shrink it")
+
+    def _basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Lab unit vectors ``n0`` (the tangent point), ``e_x`` (+RA) and ``e_y`` (+Dec) there."""
+        th, ph = np.radians(self.tangent)
+        n0 = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+        ra0, dec0 = self._tangent_radec()
+        ra0, dec0 = np.radians(ra0), np.radians(dec0)
+        # Celestial (X, Y, Z) = lab (z, x, y): +RA = (-sin a, cos a, 0), +Dec = (-sin d cos a,
+        # -sin d sin a, cos d) in celestial axes.
+        ex = np.array([np.cos(ra0), 0.0, -np.sin(ra0)])
+        ey = np.array([-np.sin(dec0) * np.sin(ra0), np.cos(dec0), -np.sin(dec0) * np.cos(ra0)])
+        return n0, ex, ey
+
+    def _tangent_radec(self) -> tuple[float, float]:
+        """The tangent point in the instrument frame's sky coordinates (deg)."""
+        th, ph = np.radians(self.tangent)
+        x, y, z = np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)
+        return float(np.degrees(np.arctan2(x, z))), float(np.degrees(np.arcsin(y)))
 
     @classmethod
     def paper(cls) -> SkyGrid:
@@ -70,12 +110,14 @@ class SkyGrid:
         return cls((70, 70), 0.2)
 
     @classmethod
-    def square(cls, fov: Any, pixel_size: Any, center: tuple[float, float] = (0.0, 0.0)) -> SkyGrid:
-        """A square field of side ``fov`` (deg) in pixels of ``pixel_size`` (deg)."""
+    def square(cls, fov: Any, pixel_size: Any, center: tuple[float, float] = (0.0, 0.0), *,
+               tangent: tuple[float, float] = (0.0, 0.0)) -> SkyGrid:
+        """A square field of side ``fov`` (deg) in pixels of ``pixel_size`` (deg), centred
+        ``center`` (deg) from the tangent point ``tangent`` (an instrument direction)."""
         f = as_scalar(fov, "grid.fov", u.deg, lo=0.0, lo_open=True)
         p = as_scalar(pixel_size, "grid.pixel_size", u.deg, lo=0.0, lo_open=True)
         n = max(1, round(f / p))
-        return cls((n, n), p, center)
+        return cls((n, n), p, center, tangent)
 
     @property
     def size(self) -> int:
@@ -93,19 +135,43 @@ class SkyGrid:
         return np.meshgrid(x, y)
 
     def directions(self) -> tuple[u.Quantity, u.Quantity]:
-        """Zenith and azimuth (Quantities, rad) of every pixel centre, flattened (n_sky,)."""
-        return self.from_tangent(*(v.ravel() for v in self.pixel_centers()))
+        """Zenith and azimuth (Quantities, rad) of every pixel centre, flattened (n_sky,).
+
+        Raises
+        ------
+        ParameterError
+            If a pixel looks at or below the detector plane (theta >= 90 deg).
+        """
+        theta, phi = self.from_tangent(*(v.ravel() for v in self.pixel_centers()))
+        if theta.size and np.max(theta) >= 0.5 * np.pi * u.rad:
+            raise ParameterError(
+                f"grid: pixels reach theta = {np.max(theta).to_value(u.deg):.4g} deg, at or "
+                "below the detector plane; shrink the field or move its tangent point")
+        return theta, phi
 
     def to_tangent(self, theta: Any, phi: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Tangent-plane coordinates (deg) of directions ``(theta, phi)`` (deg if plain)."""
+        """Tangent-plane coordinates (deg) of directions ``(theta, phi)`` (deg if plain);
+        NaN for directions 90 deg or more from the tangent point."""
         th, ph = as_angle(theta, "theta"), as_angle(phi, "phi")
-        t = np.tan(th)
-        return np.degrees(t * np.cos(ph)), np.degrees(t * np.sin(ph))
+        if self.tangent[0] == 0.0:  # tangent at the axis: the closed forms
+            t = np.tan(th)
+            return np.degrees(t * np.cos(ph)), np.degrees(t * np.sin(ph))
+        d = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+        n0, ex, ey = self._basis()
+        dn = d @ n0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dn = np.where(dn > 0.0, dn, np.nan)
+            return np.degrees((d @ ex) / dn), np.degrees((d @ ey) / dn)
 
     def from_tangent(self, x: Any, y: Any) -> tuple[u.Quantity, u.Quantity]:
         """Directions ``(theta, phi)`` (Quantities, rad) of tangent-plane coordinates (deg)."""
         xr, yr = as_angle(x, "x"), as_angle(y, "y")
-        return np.arctan(np.hypot(xr, yr)) * u.rad, np.arctan2(yr, xr) * u.rad
+        if self.tangent[0] == 0.0:  # tangent at the axis: the closed forms
+            return np.arctan(np.hypot(xr, yr)) * u.rad, np.arctan2(yr, xr) * u.rad
+        n0, ex, ey = self._basis()
+        d = n0 + xr[..., None] * ex + yr[..., None] * ey
+        theta = np.arctan2(np.hypot(d[..., 0], d[..., 1]), d[..., 2])
+        return theta * u.rad, np.arctan2(d[..., 1], d[..., 0]) * u.rad
 
     def wcs(self) -> WCS:
         """An `astropy.wcs.WCS` (TAN) for images on this grid (see module notes)."""
@@ -115,9 +181,9 @@ class SkyGrid:
         w = WCS(naxis=2)
         w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
         w.wcs.cunit = ["deg", "deg"]
-        w.wcs.crval = [0.0, 0.0]
+        w.wcs.crval = list(self._tangent_radec())
         w.wcs.cdelt = [self.pixel_size, self.pixel_size]
-        # Pixel (1-based FITS) whose centre is the tangent point (0, 0).
+        # Pixel (1-based FITS) whose centre is the tangent point (x, y) = (0, 0).
         w.wcs.crpix = [
             (nx + 1) / 2 - self.center[0] / self.pixel_size,
             (ny + 1) / 2 - self.center[1] / self.pixel_size,
@@ -130,9 +196,12 @@ class SkyGrid:
             "shape": list(self.shape),
             "pixel_size": self.pixel_size,
             "center": list(self.center),
+            "tangent": list(self.tangent),
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> SkyGrid:
-        """Inverse of :meth:`to_dict`."""
-        return cls(tuple(d["shape"]), d["pixel_size"], tuple(d["center"]))
+        """Inverse of :meth:`to_dict` (grids stored before ``tangent`` existed are tangent at
+        the axis)."""
+        return cls(tuple(d["shape"]), d["pixel_size"], tuple(d["center"]),
+                   tuple(d.get("tangent", (0.0, 0.0))))

@@ -90,3 +90,59 @@ def test_to_from_dict():
 def test_bad_grid(kwargs, match):
     with pytest.raises(ParameterError, match=match):
         SkyGrid(**kwargs)
+
+
+def _lab_directions_of_wcs(g: SkyGrid) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel directions through astropy's WCS: instrument-frame sky (RA, Dec) -> lab."""
+    ny, nx = g.shape
+    iy, ix = np.mgrid[0:ny, 0:nx]
+    sky = g.wcs().pixel_to_world(ix.ravel(), iy.ravel())
+    ra, dec = sky.ra.rad, sky.dec.rad
+    # Celestial (X, Y, Z) = lab (z, x, y) (module notes).
+    x, y, z = np.cos(dec) * np.sin(ra), np.sin(dec), np.cos(dec) * np.cos(ra)
+    return np.arctan2(np.hypot(x, y), z), np.arctan2(y, x)
+
+
+@pytest.mark.parametrize("tangent", [(48.0, 30.0), (70.0, -135.0), (5.0, 200.0)])
+def test_grid_tangent_off_axis_matches_astropy_wcs(tangent):
+    g = SkyGrid((7, 9), 1.5, center=(2.0, -3.0), tangent=tangent)
+    theta, phi = (v.to_value(u.rad) for v in g.directions())
+    th_w, ph_w = _lab_directions_of_wcs(g)
+    # wcslib's TAN is good to ~1e-12 deg.
+    np.testing.assert_allclose(theta, th_w, atol=1e-12)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (phi - ph_w))), 0.0, atol=1e-12)
+    # The tangent point itself, and the round trip through the tangent plane.
+    t0, p0 = SkyGrid((3, 3), 1.0, tangent=tangent).directions()
+    assert np.degrees(t0[4].to_value(u.rad)) == pytest.approx(tangent[0], abs=1e-12)
+    assert np.cos(p0[4].to_value(u.rad) - np.radians(tangent[1])) == pytest.approx(1.0)
+    x, y = g.to_tangent(theta * u.rad, phi * u.rad)
+    xc, yc = g.pixel_centers()
+    np.testing.assert_allclose(x, xc.ravel(), atol=1e-11)
+    np.testing.assert_allclose(y, yc.ravel(), atol=1e-11)
+    assert SkyGrid.from_dict(g.to_dict()) == g
+
+
+def test_off_axis_pixels_are_square_on_the_sky():
+    # Tangent at the field centre 48 deg off axis: the neighbours of the centre pixel are
+    # atan(1 deg) = 0.99990 deg away in both directions (gnomonic), where a grid tangent at
+    # the axis would stretch them radially by 1/cos^2(48 deg) = 2.2.
+    g = SkyGrid((3, 3), 1.0, tangent=(48.0, 0.0))
+    th, ph = (v.to_value(u.rad) for v in g.directions())
+    vec = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=1)
+    sep = np.degrees(np.arccos([vec[4] @ vec[5], vec[4] @ vec[7]]))
+    np.testing.assert_allclose(sep, np.degrees(np.arctan(np.radians(1.0))), rtol=1e-12)
+
+
+def test_grid_below_the_detector_plane_and_bad_tangent_refused():
+    with pytest.raises(ParameterError, match="at or below the detector plane"):
+        SkyGrid((5, 5), 5.0, tangent=(85.0, 0.0)).directions()
+    with pytest.raises(ParameterError, match=r"grid.tangent\[0\] must be < 90"):
+        SkyGrid((5, 5), 1.0, tangent=(90.0, 0.0))
+    with pytest.raises(ParameterError, match=r"grid\.tangent must be"):
+        SkyGrid((5, 5), 1.0, tangent=3.0)
+
+
+def test_grids_stored_before_tangent_existed_are_tangent_at_the_axis():
+    d = SkyGrid((4, 6), 0.25, center=(1.0, 2.0)).to_dict()
+    del d["tangent"]
+    assert SkyGrid.from_dict(d) == SkyGrid((4, 6), 0.25, center=(1.0, 2.0))

@@ -90,6 +90,22 @@ def test_chain_simulate_fold_response_reconstruct(capsys, tmp_path) -> None:
                "-o", rs2, "--no-progress")[0] == 0
     code, _, err = run(capsys, "reconstruct", fo, rs2, "-o", tmp_path / "im3.fits")
     assert code == 2 and "does not match" in err and "Traceback" not in err
+    # The same image from a stored Radon table (the exact model within 1e-4).
+    rr, im4 = tmp_path / "radon.zarr", tmp_path / "im4.fits"
+    code, _, err = run(capsys, "response", "-i", inst, "--operator", "radon", "--fov", "8",
+                       "--pixel", "1", "-n", "36", "-o", rr)
+    assert code == 0 and "Radon table" in err, err
+    code, _, err = run(capsys, "reconstruct", fo, rr, "--method", "mlem", "--max-iter", "30",
+                       "-o", im4)
+    assert code == 0, err
+    img4 = read_image(im4).image
+    assert np.unravel_index(np.argmax(img4), img4.shape) == (5, 6)
+    code, _, err = run(capsys, "response", "-i", inst, "--operator", "radon", "-m", "standard",
+                       "-o", tmp_path / "x.zarr")
+    assert code == 2 and "factorises the exact model" in err
+    code, _, err = run(capsys, "response", "-i", inst, "--operator", "radon", "--tolerance",
+                       "0", "-o", tmp_path / "y.zarr")
+    assert code == 2 and "tolerance must be > 0" in err and "Traceback" not in err
 
 
 def test_design_writes_table_and_plot(capsys, tmp_path) -> None:

@@ -194,3 +194,27 @@ def test_bad_input_is_refused_with_the_rule() -> None:
     # A field reaching 89 deg at a tight tolerance needs a table of ~10^11 values.
     with pytest.raises(MemoryBudgetError, match="table of"):
         RadonResponse(inst, SkyGrid((3, 3), 89.0), tb, energy, tolerance=1e-6)
+
+
+def test_stored_radon_response_is_its_table_and_reopens_as_the_same_operator(tmp_path) -> None:
+    from rotmod.errors import InstrumentMismatchError, RotmodError
+    from rotmod.response import open_response, save_response
+
+    inst, grid, tb, energy = CASES["prototype-662"]
+    radon = RadonResponse(inst, grid, tb, energy)
+    path = tmp_path / "radon.zarr"
+    back = save_response(path, radon)
+    assert isinstance(back, RadonResponse) and back.metadata() == radon.metadata()
+    np.testing.assert_array_equal(back.table, radon.table)
+    x = np.random.default_rng(8).random(radon.n_sky)
+    np.testing.assert_array_equal(back.forward(x), radon.forward(x))
+    # Checked against the caller's inputs like any store ...
+    with pytest.raises(InstrumentMismatchError, match="energy"):
+        open_response(path, energy=122.0)
+    # ... and a damaged table is refused, naming the store.
+    chunk = next(p for p in (path / "table").rglob("*") if p.is_file() and p.name != "zarr.json")
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    chunk.write_bytes(bytes(data))
+    with pytest.raises(RotmodError, match=r"radon\.zarr.*table"):
+        open_response(path)

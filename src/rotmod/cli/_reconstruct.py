@@ -34,7 +34,9 @@ def register(sub: Any) -> None:
         "-o image.fits --plot image.png",
     )
     p.add_argument("folded", metavar="FOLDED", help="folded profiles (FITS)")
-    p.add_argument("response", metavar="RESPONSE", help="response store (zarr)")
+    p.add_argument("response", metavar="RESPONSE",
+                   help="response store (zarr, from rotmod response: a matrix or a Radon "
+                   "table)")
     p.add_argument("--method", default="mlem", metavar="NAME",
                    help="algorithm (backprojection, mlem, mart, sirt, ncar; default mlem)")
     p.add_argument("--max-iter", type=count(1), default=None, metavar="N",
@@ -75,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
             f"{rsp}: the response has {response.n_time} time bins but {src} has "
             f"{folded.n_bins}; fold with --bins {response.n_time} or rebuild the response"
         )
-    response = response.load()
+    if hasattr(response, "load"):
+        response = response.load()  # a stored matrix: products from memory
     kw: dict[str, Any] = {}
     if args.max_iter is not None:
         kw["max_iter"] = args.max_iter

@@ -1,4 +1,10 @@
-"""``rotmod response``: build a response and store it as a zarr store."""
+"""``rotmod response``: build a response and store it as a zarr store.
+
+``--operator matrix`` (default) computes and stores every value ``P[d, t, n]`` of a profile
+model; ``--operator radon`` stores the table of a :class:`~rotmod.response.RadonResponse`
+(the exact model within ``--tolerance``), which is what makes wide fields storable:
+megabytes instead of ``n_det n_time n_sky`` values.  ``rotmod reconstruct`` opens either.
+"""
 
 from __future__ import annotations
 
@@ -25,24 +31,38 @@ def register(sub: Any) -> None:
     p = sub.add_parser(
         "response",
         help="build and store a response (zarr); on Dask with --scheduler",
-        description="Compute the response P[d, t, n] of an instrument on a square sky grid "
-        "with a profile model and store it as a chunked, compressed zarr store with its "
-        "provenance. The write is atomic and resumable: rerunning after an interruption "
-        "computes only the missing chunks.",
-        epilog="example: rotmod response -i paper --model exact --fov 14 --pixel 0.2 "
-        "--bins 560 -o response.zarr --progress",
+        description="Compute the response of an instrument on a square sky grid and store "
+        "it as a chunked, compressed, checksummed zarr store with its provenance. "
+        "--operator matrix (default) stores every value P[d, t, n] of a profile model (atomic "
+        "and resumable: rerunning after an interruption computes only the missing chunks); "
+        "--operator radon stores the table of the Radon-factorised exact model, accurate to "
+        "--tolerance, small enough for wide fields (rule: use radon when n_det x n_time x "
+        "n_sky values do not fit in memory, or to image fast; matrix for small grids reused "
+        "many times or other models).",
+        epilog="examples: rotmod response -i paper --model exact --fov 14 --pixel 0.2 "
+        "--bins 560 -o response.zarr --progress;  rotmod response -i prototype --operator "
+        "radon --fov 20 --pixel 0.1 --tangent 48,30 -o wide.zarr",
     )
     add_instrument(p)
     add_energy(p)
+    p.add_argument("--operator", choices=("matrix", "radon"), default="matrix",
+                   help="what to store: every value of P (matrix, default) or the Radon "
+                   "factorisation's table (radon; the exact model)")
     p.add_argument("-m", "--model", default=None, metavar="NAME",
                    help="profile model (standard, advanced, advanced-approx, advanced-g0, "
-                   "exact; default exact)")
+                   "exact; default exact; radon is always exact)")
+    p.add_argument("--tolerance", type=float, default=1e-4, metavar="DP",
+                   help="radon: largest error of any profile value (default 1e-4)")
     p.add_argument("--fov", type=quantity("deg"), default=14.0, metavar="DEG",
                    help="side of the square field (deg; default 14, the paper's)")
     p.add_argument("--pixel", type=quantity("deg"), default=0.2, metavar="DEG",
                    help="pixel size (deg; default 0.2 = 12 arcmin, the paper's)")
     p.add_argument("--center", type=str, default="0,0", metavar="X,Y",
                    help="tangent-plane centre of the field (deg; default 0,0)")
+    p.add_argument("--tangent", type=str, default="0,0", metavar="THETA,PHI",
+                   help="instrument direction where the projection plane touches the sky "
+                   "(deg; default 0,0, the axis): a field centred far off axis keeps square "
+                   "pixels")
     p.add_argument("-n", "--bins", type=count(1), default=560, metavar="N",
                    help="mask-angle bins per rotation (default 560, the paper's)")
     p.add_argument("--bin-mode", choices=("center", "average"), default="center",
@@ -56,36 +76,47 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def parse_center(text: str) -> tuple[float, float]:
+def parse_pair(text: str, option: str = "--center", names: str = "X,Y") -> tuple[float, float]:
     try:
         x, y = (float(v) for v in text.split(","))
     except ValueError:
-        raise UserError(f"--center: must be X,Y in degrees, got {text!r}") from None
+        raise UserError(f"{option}: must be {names} in degrees, got {text!r}") from None
     return x, y
 
 
 def run(args: argparse.Namespace) -> int:
     from rotmod.profiles import DEFAULT_MODEL, MODELS
-    from rotmod.response.stored import write_response
-
-    args.model = args.model or DEFAULT_MODEL
-    from rotmod.response import TimeBinning
+    from rotmod.response import RadonResponse, TimeBinning
+    from rotmod.response.stored import save_response, write_response
     from rotmod.sky import SkyGrid
 
+    args.model = args.model or DEFAULT_MODEL
     out = check_output(args.output, args.overwrite)
     if args.model not in MODELS:
         raise UserError(f"--model: must be one of {', '.join(sorted(MODELS))}, got "
+                        f"{args.model!r}")
+    if args.operator == "radon" and args.model != "exact":
+        raise UserError(f"--model: --operator radon factorises the exact model, got "
                         f"{args.model!r}")
     if args.bins < 1:
         raise UserError(f"--bins: must be >= 1, got {args.bins}")
     cfg = load_config(args)
     inst = cfg.to_instrument()
     energy = energy_of(args, cfg)
-    grid = SkyGrid.square(args.fov, args.pixel, parse_center(args.center))
+    grid = SkyGrid.square(args.fov, args.pixel, parse_pair(args.center),
+                          tangent=parse_pair(args.tangent, "--tangent", "THETA,PHI"))
     bins = TimeBinning(args.bins, args.bin_mode)
-    say(f"rotmod: response {args.model}: {len(inst.detectors)} detector(s) x {args.bins} bins x "
+    kind = "radon (exact)" if args.operator == "radon" else args.model
+    say(f"rotmod: response {kind}: {len(inst.detectors)} detector(s) x {args.bins} bins x "
         f"{grid.size} pixels ({grid.shape[1]}x{grid.shape[0]}), {energy:g} keV"
         f"{', scheduler ' + args.scheduler if args.scheduler else ''}")
+    if args.operator == "radon":
+        radon = RadonResponse(inst, grid, bins, energy, tolerance=args.tolerance,
+                              dtype=args.dtype)
+        save_response(out, radon, overwrite=args.overwrite)
+        j, kr = radon.table.shape
+        say(f"rotmod: wrote {out} (Radon table {j} x {kr}, tolerance {args.tolerance:g})")
+        return 0
     stored = write_response(
         out, inst, grid, bins, args.model, energy, dtype=args.dtype, overwrite=args.overwrite,
         scheduler=args.scheduler, progress=progress_wanted(args),

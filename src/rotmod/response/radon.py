@@ -332,6 +332,10 @@ class RadonResponse(ResponseOperator):
         Run the blocks on a Dask cluster (address or ``distributed.Client``).
     progress : bool
         tqdm bar over the blocks of each product.
+    table : ndarray, optional
+        The table computed earlier for the same inputs (what a stored Radon response holds,
+        :func:`~rotmod.response.open_response`); checked against the shape these inputs
+        give, and used instead of computing it.
 
     Raises
     ------
@@ -363,6 +367,7 @@ class RadonResponse(ResponseOperator):
         scheduler: str | None = None,
         client: Any = None,
         progress: bool = False,
+        table: np.ndarray | None = None,
     ) -> None:
         inst, tb, e, dt = check_response_inputs(
             instrument, grid, time_bins, energy, dtype=dtype, detectors=detectors
@@ -376,11 +381,11 @@ class RadonResponse(ResponseOperator):
         self.n_det, self.n_time, self.n_sky = len(inst.detectors), tb.n_bins, int(grid.size)
         # A half turn maps the mask onto itself: bins t and t + N/2 share a response.
         self.n_distinct = self.n_time // 2 if self.n_time % 2 == 0 else self.n_time
-        self._factors = self._setup(block_bins)
+        self._factors = self._setup(block_bins, table)
 
     # -- setup ---------------------------------------------------------------------------
 
-    def _setup(self, block_bins: int | None) -> _Factors:
+    def _setup(self, block_bins: int | None, given: np.ndarray | None) -> _Factors:
         inst, tb, dt = self.instrument, self.time_bins, self.dtype
         mask, det = inst.mask, inst.detectors
         a, b, h, big_l = mask.slat_width, mask.slat_gap, mask.thickness, mask.height
@@ -419,7 +424,15 @@ class RadonResponse(ResponseOperator):
         check_memory(float(n_x) * n_w * n_q * (dt.itemsize + 8),
                      f"a table of {n_x} x {n_w} x {n_q} profile values",
                      hint="raise tolerance, or use a smaller field")
-        table = self._table(a, b, h, big_l, radius, mu, period, n_x, n_w, k0, dw, q_nodes)
+        if given is None:
+            table = self._table(a, b, h, big_l, radius, mu, period, n_x, n_w, k0, dw, q_nodes)
+        else:
+            table = np.ascontiguousarray(given, dtype=dt)
+            if table.shape != (n_x, n_w * n_q):
+                raise ParameterError(
+                    f"table must have shape {(n_x, n_w * n_q)} for these inputs, got "
+                    f"{table.shape}; it was computed for another instrument, grid, energy "
+                    "or tolerance")
         # Angles: every sub-sample of the distinct bins, in bin order.
         xi = tb.sub_angles(0, self.n_distinct).T.ravel()  # (n_distinct * n_sub,)
         cos_a, sin_a = np.cos(xi), np.sin(xi)
@@ -528,6 +541,11 @@ class RadonResponse(ResponseOperator):
         out = np.empty(self.n_sky)
         out[self._perm] = acc
         return out.astype(self.dtype, copy=False)
+
+    @property
+    def table(self) -> np.ndarray:
+        """The table ``Psi[j, k, r]`` as ``(J, K R)`` (what a stored Radon response holds)."""
+        return self._factors.table
 
     def materialise(self) -> MaterialisedResponse:
         """Every value ``P[d, t, n]`` of this operator, held in memory.

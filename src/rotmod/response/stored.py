@@ -10,6 +10,10 @@ The metadata is :meth:`~rotmod.response.ResponseOperator.metadata` (instrument, 
 binning, model, energy, dtype, shape, rotmod version) plus ``format_version``; the JSON
 string keeps ``inf`` attenuation coefficients (opaque masks) exact.
 
+A :class:`~rotmod.response.RadonResponse` is stored as its table instead of ``P`` (array
+``table``, metadata ``operator = {"kind": "radon", ...}``): megabytes where ``P`` would take
+terabytes, and :func:`open_response` gives back the same operator.
+
 Writing is atomic and resumable.  :func:`write_response` computes the response chunk by
 chunk into ``<path>.partial``: each chunk is written and then a marker file
 ``<path>.partial/_done/<i>`` is created, so a marker always means a complete chunk.  An
@@ -465,26 +469,65 @@ def _check_complete(arr: Any, blocks: list[Any], store: Path) -> None:
                           "complete")
 
 
+def _save_table(partial: Path, meta: dict[str, Any], table: np.ndarray) -> None:
+    """Write a Radon response's table (checksummed chunks of whole rows) and verify it."""
+    import zarr
+
+    g = zarr.open_group(str(partial), mode="w")
+    g.attrs[_ATTR] = json.dumps(meta)
+    g.attrs["complete"] = False
+    rows = max(1, (16 << 20) // max(1, table.shape[1] * table.itemsize))
+    arr = g.create_array(
+        "table", shape=table.shape, chunks=(rows, table.shape[1]), dtype=table.dtype,
+        fill_value=np.nan, compressors=[zarr.codecs.ZstdCodec(), zarr.codecs.Crc32cCodec()],
+    )
+    arr[...] = table
+    _read_table(g, partial)
+
+
+def _read_table(group: Any, store: Path) -> np.ndarray:
+    """A stored Radon table, every chunk checked (checksum, NaN, values in [0, 1]).
+
+    Raises
+    ------
+    RotmodError
+    """
+    where = f"response store {str(store)!r}, array table"
+    try:
+        table = np.asarray(group["table"][...])
+    except Exception as exc:  # zarr/numcodecs raise KeyError, ValueError, RuntimeError...
+        raise RotmodError(f"{where} cannot be read ({type(exc).__name__}: {exc}); the store "
+                          "is damaged: rebuild it with rotmod response") from exc
+    bad = ~((table >= 0) & (table <= 1))
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise RotmodError(f"{where}, row {row} holds values that are not profile values "
+                          "(NaN or outside [0, 1]); the store is damaged: rebuild it")
+    return table
+
+
 def save_response(
     path: Any,
     response: ResponseOperator,
     *,
     chunks: tuple[int, int] | None = None,
     overwrite: bool = False,
-) -> StoredResponse:
-    """Write an existing response (materialised, matrix-free or stored) atomically.
+) -> ResponseOperator:
+    """Write an existing response (materialised, matrix-free, Radon or stored) atomically.
 
     Parameters
     ----------
     path : str or Path
     response : ResponseOperator
-        Needs ``todense()`` or ``block(t=, n=)`` (all rotmod responses have one).
+        Needs ``todense()`` or ``block(t=, n=)`` (all rotmod responses have one), or is a
+        :class:`~rotmod.response.RadonResponse` (stored as its table).
     chunks, overwrite
         As :func:`write_response`.
 
     Returns
     -------
-    StoredResponse
+    StoredResponse or RadonResponse
+        The store, opened (see :func:`open_response`).
     """
     path = _as_path(path)
     _check_target(path, overwrite)
@@ -495,9 +538,14 @@ def save_response(
     shape = (response.n_det, response.n_time, response.n_sky)
     if chunks is None:
         chunks = _default_chunks(shape, np.dtype(response.dtype).itemsize)
-    arr = _create(partial, meta, chunks)
     from rotmod.response.parallel import block_grid
+    from rotmod.response.radon import RadonResponse
 
+    if isinstance(response, RadonResponse):
+        _save_table(partial, meta, response.table)
+        _finalise(partial, path, overwrite)
+        return open_response(path)
+    arr = _create(partial, meta, chunks)
     dense = response.todense() if hasattr(response, "todense") else None
     for (t0, t1), (n0, n1) in block_grid(shape, chunks):
         if dense is not None:
@@ -523,7 +571,7 @@ def open_response(
     time_bins: Any = None,
     model: Any = None,
     energy: Any = None,
-) -> StoredResponse:
+) -> ResponseOperator:
     """Open a finished response store lazily, checking it against the given inputs.
 
     Parameters
@@ -535,7 +583,10 @@ def open_response(
 
     Returns
     -------
-    StoredResponse
+    StoredResponse or RadonResponse
+        A store of ``P`` opens lazily (chunks read on each product; ``.load()`` reads it
+        all); a store of a Radon table opens as the :class:`~rotmod.response.RadonResponse`
+        it was written from.
 
     Raises
     ------
@@ -564,6 +615,9 @@ def open_response(
     check_response_matches(
         meta, instrument=instrument, grid=grid, time_bins=time_bins, model=model, energy=energy
     )
+    operator = meta.get("operator") or {}
+    if operator.get("kind") == "radon":
+        return _open_radon(g, p, meta)
     try:
         arr = g["P"]
     except Exception as exc:
@@ -575,6 +629,20 @@ def open_response(
     return StoredResponse(p, arr, meta)
 
 
+def _open_radon(group: Any, path: Path, meta: dict[str, Any]) -> ResponseOperator:
+    from rotmod.response.radon import RadonResponse
+
+    table = _read_table(group, path)
+    r = _restore(meta)
+    try:
+        return RadonResponse(r["instrument"], r["grid"], r["time_bins"], r["energy"],
+                             tolerance=meta["operator"]["tolerance"], dtype=meta["dtype"],
+                             table=table)
+    except (KeyError, TypeError) as exc:
+        raise RotmodError(f"response store {str(path)!r}: its metadata is damaged ({exc}); "
+                          "rebuild it with rotmod response") from exc
+
+
 def load_response(path: Any, **expected: Any) -> MaterialisedResponse:
     """Open (see :func:`open_response`) and read the whole response into memory.
 
@@ -582,4 +650,5 @@ def load_response(path: Any, **expected: Any) -> MaterialisedResponse:
     -------
     MaterialisedResponse
     """
-    return open_response(path, **expected).load()
+    r = open_response(path, **expected)
+    return r.materialise() if hasattr(r, "materialise") else r.load()

@@ -218,3 +218,13 @@ def test_stored_radon_response_is_its_table_and_reopens_as_the_same_operator(tmp
     chunk.write_bytes(bytes(data))
     with pytest.raises(RotmodError, match=r"radon\.zarr.*table"):
         open_response(path)
+
+
+def test_columns_are_the_materialised_values() -> None:
+    radon = _radon("small-detector-opaque")
+    full = radon.materialise().matrix
+    np.testing.assert_array_equal(radon.columns([7, 0, 119]), full[:, :, [7, 0, 119]])
+    with pytest.raises(ParameterError, match="pixels must be integer indices"):
+        radon.columns([120])
+    with pytest.raises(ParameterError, match="pixels must be integer indices"):
+        radon.columns([1.5])

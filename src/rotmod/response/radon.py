@@ -547,6 +547,43 @@ class RadonResponse(ResponseOperator):
         """The table ``Psi[j, k, r]`` as ``(J, K R)`` (what a stored Radon response holds)."""
         return self._factors.table
 
+    def columns(self, pixels: Any) -> np.ndarray:
+        """``P[:, :, pixels]``: the values this operator uses for some sky pixels.
+
+        Parameters
+        ----------
+        pixels : sequence of int
+            Sky pixel indices (flattened grid order).
+
+        Returns
+        -------
+        ndarray, shape (n_det, n_time, len(pixels))
+            In this operator's dtype.
+
+        Raises
+        ------
+        ParameterError
+            Indices that are not integers in ``[0, n_sky)``.
+        MemoryBudgetError
+            If the result does not fit the memory budget.
+        """
+        idx = np.atleast_1d(np.asarray(pixels))
+        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (
+                idx.size and (idx.min() < 0 or idx.max() >= self.n_sky)):
+            raise ParameterError(f"pixels must be integer indices in [0, {self.n_sky - 1}], "
+                                 f"got {pixels!r}")
+        check_memory(float(self.n_det) * self.n_time * idx.size * self.dtype.itemsize,
+                     f"a response of {self.n_det} x {self.n_time} x {idx.size} values",
+                     hint="ask for fewer pixels at a time")
+        f = self._factors
+        where = np.empty(self.n_sky, dtype=np.int64)
+        where[self._perm] = np.arange(self.n_sky)  # position of each pixel in Z order
+        k = where[idx]
+        part = np.empty((self.n_det, self.n_distinct, idx.size), dtype=self.dtype)
+        _dense(f.table, f.tx[k], f.ty[k], f.q_weights[k], f.cos_a, f.sin_a, f.k0, f.inv_dw,
+               f.jx, f.ax, f.n_sub, part)
+        return np.concatenate([part] * (self.n_time // self.n_distinct), axis=1)
+
     def materialise(self) -> MaterialisedResponse:
         """Every value ``P[d, t, n]`` of this operator, held in memory.
 
@@ -559,19 +596,9 @@ class RadonResponse(ResponseOperator):
         MemoryBudgetError
             If the matrix does not fit the memory budget.
         """
-        f = self._factors
-        h = self.n_distinct
-        check_memory(float(self.n_det) * self.n_time * self.n_sky * self.dtype.itemsize,
-                     f"a response of {self.n_det} x {self.n_time} x {self.n_sky} values",
-                     hint="compare a subset of detectors or a smaller grid")
-        part = np.empty((self.n_det, h, self.n_sky), dtype=self.dtype)
-        _dense(f.table, f.tx, f.ty, f.q_weights, f.cos_a, f.sin_a, f.k0, f.inv_dw, f.jx, f.ax,
-               f.n_sub, part)
-        matrix = np.empty((self.n_det, self.n_time, self.n_sky), dtype=self.dtype)
-        matrix[:, :, self._perm] = np.concatenate([part] * (self.n_time // h), axis=1)
-        return MaterialisedResponse(matrix, instrument=self.instrument, grid=self.grid,
-                                    time_bins=self.time_bins, model=self.model,
-                                    energy=self.energy)
+        return MaterialisedResponse(
+            self.columns(np.arange(self.n_sky)), instrument=self.instrument, grid=self.grid,
+            time_bins=self.time_bins, model=self.model, energy=self.energy)
 
     def metadata(self) -> dict[str, Any]:
         """As :meth:`ResponseOperator.metadata`, plus ``operator``: the factorisation's

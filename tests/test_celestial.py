@@ -179,9 +179,18 @@ def test_a_drifting_rolling_observation_images_with_the_drift_response() -> None
     folded = fold(ev, 90)
     grid = CelestialGrid((15, 15), 0.5, 201.0, -59.5, table.at(600.0))
     tb = TimeBinning(90, "average", 2)
-    res = reconstruct(drift_response(inst, grid, tb, steps, energy=122), folded)
+    matrix = drift_response(inst, grid, tb, steps, energy=122)
+    res = reconstruct(matrix, folded)
     iy, ix = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
     assert grid.wcs().pixel_to_world(ix, iy).separation(true).deg < 0.5 * np.sqrt(2)
+    # The same sum kept as per-interval Radon operators: each value within their tolerance
+    # (a weighted mean of values each within it), so the products agree to it times |S|_1.
+    radon = drift_response(inst, grid, tb, steps, energy=122, operator="radon",
+                           tolerance=1e-3)
+    x = np.random.default_rng(0).random(grid.size)
+    assert np.abs(radon.forward(x) - matrix.forward(x)).max() <= 1e-3 * x.sum()
+    y = np.random.default_rng(1).random((len(inst.detectors), 90))
+    assert np.abs(radon.adjoint(y) - matrix.adjoint(y)).max() <= 1e-3 * y.sum()
 
 
 def test_an_extended_disc_goes_through_the_same_path() -> None:

@@ -9,8 +9,12 @@ data see is
     P[d, t, n] = sum_k exposure_k[t] P_k[d, t, n] / sum_k exposure_k[t],
 
 with ``exposure_k[t]`` the time interval ``k`` spends in mask-angle bin ``t`` (the same exact
-per-bin exposure that folding uses).  It is a response like any other (a
-:class:`~rotmod.response.MaterialisedResponse`), on a celestial grid.
+per-bin exposure that folding uses).  It is a response like any other, on a celestial grid:
+with ``operator="matrix"`` the sum is computed and held (a
+:class:`~rotmod.response.MaterialisedResponse`); with ``operator="radon"`` it stays a sum of
+per-interval :class:`~rotmod.response.RadonResponse` operators (:class:`DriftResponse`),
+which is what a wide field needs: no ``n_det n_time n_sky`` matrix, and products that cost
+one Radon product per interval.
 """
 
 from __future__ import annotations
@@ -19,13 +23,57 @@ from typing import Any
 
 import numpy as np
 
+from rotmod.errors import ParameterError
 from rotmod.events.folding import exposure_per_bin
 from rotmod.limits import check_memory
-from rotmod.profiles.base import DEFAULT_MODEL
+from rotmod.profiles.base import DEFAULT_MODEL, get_model
 from rotmod.response.binning import TimeBinning
 from rotmod.response.materialised import MaterialisedResponse, build_response
+from rotmod.response.operator import ResponseOperator
+from rotmod.response.radon import RadonResponse
 
-__all__ = ["drift_response"]
+__all__ = ["DriftResponse", "drift_response"]
+
+
+class DriftResponse(ResponseOperator):
+    """``P = sum_k W_k P_k``: operators ``P_k`` weighted bin by bin (``W_k = diag_t(w_k)``).
+
+    Parameters
+    ----------
+    parts : list of ResponseOperator
+        One per attitude interval, all of the same shape.
+    weights : ndarray, shape (n_parts, n_time)
+        ``exposure_k[t] / sum_k exposure_k[t]`` (0 where a bin has no exposure).
+
+    Notes
+    -----
+    ``forward(S) = sum_k w_k[t] P_k S`` and ``adjoint(Y) = sum_k P_k^T (w_k[t] Y)``.
+    """
+
+    def __init__(self, parts: list[ResponseOperator], weights: np.ndarray) -> None:
+        if not parts:
+            raise ParameterError("intervals must hold at least one attitude interval")
+        first = parts[0]
+        self.parts = parts
+        self.weights = np.asarray(weights, dtype=np.float64)
+        self.n_det, self.n_time, self.n_sky = first.n_det, first.n_time, first.n_sky
+        self.dtype = first.dtype
+        self.instrument, self.time_bins = first.instrument, first.time_bins
+        self.model, self.energy = first.model, first.energy
+        self.grid = None
+
+    def _forward(self, sky: np.ndarray) -> np.ndarray:
+        out = np.zeros((self.n_det, self.n_time))
+        for w, part in zip(self.weights, self.parts, strict=True):
+            out += w[None, :] * part.forward(sky)
+        return out.astype(self.dtype, copy=False)
+
+    def _adjoint(self, counts: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.n_sky)
+        y = np.asarray(counts, dtype=np.float64)
+        for w, part in zip(self.weights, self.parts, strict=True):
+            out += part.adjoint(w[None, :] * y)
+        return out.astype(self.dtype, copy=False)
 
 
 def drift_response(
@@ -38,7 +86,9 @@ def drift_response(
     *,
     start_phase: Any = 0.0,
     dtype: Any = np.float64,
-) -> MaterialisedResponse:
+    operator: str = "matrix",
+    tolerance: float = 1e-4,
+) -> ResponseOperator:
     """Exposure-weighted response over attitude ``intervals`` (see the module notes).
 
     Parameters
@@ -53,26 +103,48 @@ def drift_response(
         As for :func:`~rotmod.response.build_response`.
     start_phase : float or Quantity
         Mask angle at ``t = 0`` (deg if plain), as in the event list.
+    operator : {"matrix", "radon"}
+        Hold the summed matrix, or keep a :class:`DriftResponse` of per-interval
+        :class:`~rotmod.response.RadonResponse` operators (the exact model within
+        ``tolerance``; ``model`` must be ``"exact"``).
+    tolerance : float
+        With ``operator="radon"``: the largest error of any profile value.
 
     Returns
     -------
-    MaterialisedResponse
+    MaterialisedResponse or DriftResponse
     """
     import dataclasses
 
     tb = TimeBinning.coerce(time_bins)
+    if operator not in ("matrix", "radon"):
+        raise ParameterError(f"operator must be 'matrix' or 'radon', got {operator!r}")
+    if not intervals:
+        raise ParameterError("intervals must hold at least one attitude interval")
+    weights = np.array([exposure_per_bin([[lo, hi]], tb.n_bins, instrument.rotation_period,
+                                         start_phase) for lo, hi, _ in intervals])
+    total = weights.sum(axis=0) if len(intervals) else np.zeros(tb.n_bins)
+    if operator == "radon":
+        if get_model(model).name != "exact":
+            raise ParameterError(f"model: operator 'radon' factorises the exact model, got "
+                                 f"{model!r}")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            norm = np.where(total > 0, weights / total, 0.0)
+        parts: list[ResponseOperator] = [
+            RadonResponse(instrument, dataclasses.replace(grid, attitude=att), tb, energy,
+                          tolerance=tolerance, dtype=dtype) for _, _, att in intervals]
+        op = DriftResponse(parts, norm)
+        op.grid = grid
+        return op
     n_det = len(instrument.detectors)
     check_memory(2 * 8.0 * n_det * tb.n_bins * grid.size,
                  f"a drift response of {n_det} x {tb.n_bins} x {grid.size}",
                  hint="use fewer pixels or time bins")
-    total = np.zeros(tb.n_bins)
     acc = np.zeros((n_det, tb.n_bins, grid.size))
-    for lo, hi, att in intervals:
-        w = exposure_per_bin([[lo, hi]], tb.n_bins, instrument.rotation_period, start_phase)
+    for w, (_, _, att) in zip(weights, intervals, strict=True):
         part = build_response(instrument, dataclasses.replace(grid, attitude=att), tb, model,
                               energy, dtype=np.float64)
         acc += w[None, :, None] * part.matrix
-        total += w
     with np.errstate(invalid="ignore", divide="ignore"):
         matrix = np.where(total[None, :, None] > 0, acc / total[None, :, None], 0.0)
     return MaterialisedResponse(matrix.astype(dtype), instrument=instrument, grid=grid,

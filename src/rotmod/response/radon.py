@@ -50,7 +50,7 @@ from rotmod.response.operator import ResponseOperator
 
 __all__ = ["RadonResponse"]
 
-#: Interpolation error of the table: max |dP| ~ ERROR_LAW * step^1.5, with ``step`` the table
+#: Interpolation error of the table: ``max abs(dP) ~ ERROR_LAW step^1.5``, ``step`` the table
 #: spacing in ``u`` in detector radii (cubic in ``w``; linear in ``x`` at half the step).
 #: Chosen so that the measured error stays below the tolerance with a margin: at most 0.86
 #: of it on the paper's whole grid and random geometries (docs/response.md).

@@ -69,17 +69,23 @@ BLOCK_BYTES = 64 << 20
 # --- kernels ------------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+#: Fused multiply-adds only: ~1.5x the speed of the scatter loops, and the same sums
+#: whatever the thread count (no reassociation).
+_FMA = {"contract"}
+
+
+@njit(cache=True, inline="always", fastmath=_FMA)
 def _cubic(f: float) -> tuple[float, float, float, float]:
     """Lagrange weights of the nodes -1, 0, 1, 2 at ``f`` in [0, 1)."""
     fm1 = f - 1.0
     fm2 = f - 2.0
     fp1 = f + 1.0
-    return (-f * fm1 * fm2 / 6.0, fp1 * fm1 * fm2 * 0.5, -fp1 * f * fm2 * 0.5,
-            fp1 * f * fm1 / 6.0)
+    sixth = 1.0 / 6.0  # a multiplication: a division here would dominate the splat
+    return (-f * fm1 * fm2 * sixth, fp1 * fm1 * fm2 * 0.5, -fp1 * f * fm2 * 0.5,
+            fp1 * f * fm1 * sixth)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, fastmath=_FMA)
 def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out):
     """``out[a, k, r] += sum_n v[n, r] B_k(w_n(a))`` (cubic weights ``B``), one angle per
     thread, so each ``out[a]`` is summed in pixel order whatever the thread count."""
@@ -102,7 +108,7 @@ def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out):
                 o[i + 2, r] += b3 * vr
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, fastmath=_FMA)
 def _gather(tx, ty, cos_a, sin_a, k0, inv_dw, gg, chunk, acc):
     """``acc[n, r] += sum_a sum_k B_k(w_n(a)) gg[a, k, r]`` (the transpose of
     :func:`_splat`), one chunk of pixels per task and the angles in order, so the sums do not

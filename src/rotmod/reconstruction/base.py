@@ -52,6 +52,14 @@ def _check_float(value: Any, name: str, lo: float, *, lo_open: bool = True,
     return v
 
 
+def _safe_div(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """``num / den`` where ``den > 0``, else 0 (ratios of counts to models, of
+    back-projections to sensitivities)."""
+    out = np.zeros(np.broadcast(num, den).shape)
+    np.divide(num, den, out=out, where=den > 0)
+    return out
+
+
 @dataclass(frozen=True)
 class StoppingRule:
     """When an iterative reconstruction stops (the first rule that holds, checked in order).

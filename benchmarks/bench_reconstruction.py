@@ -1,0 +1,175 @@
+"""Reconstruction quality and speed of every method on the issue-11 scenarios, side by side.
+
+Run: ``python benchmarks/bench_reconstruction.py [--scenarios thin,proto,field] [--quick]``.
+
+Data: Poisson draws of the *exact* profile model (360 bin-averaged time bins, as
+``TimeBinning(360, "average")``) computed separately for each source with 16 sub-samples
+per bin, while the reconstruction's response uses the library default (exact model, 4
+sub-samples per bin, float32); the background is flat and known (given to every method).
+
+Scenarios (counts printed with each table):
+
+* ``thin``: 0.5 cm lead at 662 keV (sigma 0.103 cm2/g), a = b = c = 4 cm, L = 100 cm
+  (b/L = 2.29 deg), 19 detectors; two equal sources 1.2 deg apart (and the separation
+  sweep 1.8 ... 0.6 deg), flat background counts = the sources' counts.
+* ``proto``: the ``prototype`` preset (19 x 3.8 cm, b/L = 1.9 deg, 2 cm lead) at
+  122 keV; two equal sources at 35' and 30' (sweep 35' ... 10'), background counts =
+  the sources' counts.
+* ``field``: ``SkyGrid.paper()`` (14 deg field, 70 x 70 pixels of 12'), the paper's mask
+  (2 cm lead, 662 keV) over 19 detectors of 4 cm; three sources of rates 10, 5 and 3 /s
+  across the field, background counts = the sources' counts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import time
+
+import numpy as np
+
+from rotmod.geometry import DetectorArray, Instrument
+from rotmod.materials import PAPER_SIGMA_662
+from rotmod.reconstruction import reconstruct
+from rotmod.reconstruction.api import DEFAULT_METHOD
+from rotmod.reconstruction.metrics import evaluate
+from rotmod.response import TimeBinning, build_response
+from rotmod.sky.grid import SkyGrid
+
+log = logging.getLogger("bench_reconstruction")
+
+N_BINS, EXPOSURE_PER_BIN = 360, 10.0  # 3600 s observations, whole turns
+
+METHODS: list[tuple[str, str, dict]] = [
+    ("backprojection", "backprojection", {}),
+    ("mlem", "mlem", {}),
+    ("mlem x20", "mlem", {"max_iter": 10_000, "rel_tol": None}),
+    ("mart", "mart", {}),
+    ("sirt", "sirt", {}),
+    ("osem", "osem", {}),
+    ("sgp", "sgp", {}),
+    ("sparse", "sparse", {}),
+    ("ncar", "ncar", {}),
+    ("ncar (sirt core)", "ncar", {"core": "sirt"}),
+]
+
+
+def thin_instrument() -> Instrument:
+    one = Instrument.paper(h=0.5, sigma=PAPER_SIGMA_662)
+    return Instrument(one.mask, DetectorArray.hexagonal(4.0, rings=2), one.rotation_period)
+
+
+def field_instrument() -> Instrument:
+    one = Instrument.paper(h=2.0, sigma=PAPER_SIGMA_662)
+    return Instrument(one.mask, DetectorArray.hexagonal(4.0, rings=2), one.rotation_period)
+
+
+def simulate(inst, grid, xy, flux, energy, seed):
+    """Counts (n_det, n_bins): exact model per source (16 sub-samples), flat background."""
+    tb = TimeBinning(N_BINS, "average", n_sub=16)
+    src = np.zeros((len(inst.detectors), N_BINS))
+    for (x, y), f in zip(xy, flux, strict=True):
+        one = SkyGrid((1, 1), grid.pixel_size, (x, y))
+        r = build_response(inst, one, tb, model="exact", energy=energy, dtype=np.float64)
+        src += EXPOSURE_PER_BIN * f * r.forward(np.ones(1))
+    bkg_rate = src.sum() / src.size / EXPOSURE_PER_BIN  # background counts = source counts
+    rng = np.random.default_rng(seed)
+    y = rng.poisson(src + EXPOSURE_PER_BIN * bkg_rate).astype(float)
+    th, ph = grid.from_tangent(np.array([p[0] for p in xy]), np.array([p[1] for p in xy]))
+    return y, bkg_rate, (th, ph)
+
+
+def run_methods(resp, y, bkg, grid, sources, flux, radius, methods, label, rows, seed=3):
+    for name, method, kw in methods:
+        t0 = time.perf_counter()
+        res = reconstruct(resp, y, method, exposure=EXPOSURE_PER_BIN, background=bkg,
+                          seed=seed, **kw)
+        dt = time.perf_counter() - t0
+        m = evaluate(res, grid, sources, true_flux=flux, radius=radius)
+        rows.append((label, name, m, res.n_iter, dt, res.params.get("lambda")))
+        log.info("%s %-18s loc %.3f spur/weakest %.2f dip %s iters %d %.2f s", label, name,
+                 m["loc_err_max"], m["spurious_weakest"], f"{m.get('dip', np.nan):.2f}",
+                 res.n_iter, dt)
+
+
+def table(rows, title) -> str:
+    out = [f"\n### {title}\n", "| case | method | loc err (deg) | spurious/weakest | dip | "
+           "flux | chi2/dof | iters | time (s) |", "|---|---|---|---|---|---|---|---|---|"]
+    for label, name, m, it, dt, _ in rows:
+        out.append(
+            f"| {label} | {name} | {m['loc_err_max']:.3f} | {m['spurious_weakest']:.2f} | "
+            f"{m.get('dip', float('nan')):.2f} | {m['flux_ratio']:.2f} | {m['chi2_dof']:.3f} |"
+            f" {it} | {dt:.2f} |"
+        )
+    return "\n".join(out)
+
+
+def pair(inst, energy, pix, n_pix, seps, flux, methods, label_fmt, radius_frac=0.45):
+    rows = []
+    grid = SkyGrid((n_pix, n_pix), pix, (1.0, 0.0))
+    t0 = time.perf_counter()
+    resp = build_response(inst, grid, TimeBinning(N_BINS, "average"), energy=energy)
+    log.info("response %s in %.1f s", resp, time.perf_counter() - t0)
+    counts = []
+    for k, sep in enumerate(seps):
+        # Sources on pixel centres: y = -floor(n/2) pix and the rest of the separation.
+        n_sep = round(sep / pix)
+        y0 = -(n_sep // 2) * pix
+        xy = [(1.0, y0), (1.0, y0 + n_sep * pix)]
+        y, bkg, src = simulate(inst, grid, xy, flux, energy, seed=10 + k)
+        counts.append(f"{label_fmt(sep)}: {y.sum():.3g} counts (background {bkg:.2f} /s "
+                      f"per detector)")
+        run_methods(resp, y, bkg, grid, src, flux, max(radius_frac * sep, pix), methods,
+                    label_fmt(sep), rows)
+    return rows, counts, resp, grid
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--scenarios", default="thin,proto,field")
+    ap.add_argument("--quick", action="store_true", help="only the required separations")
+    ap.add_argument("--out", default=None, help="also write the tables to this file")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    print(f"default method: {DEFAULT_METHOD}; load average {os.getloadavg()}; "
+          f"{os.cpu_count()} cores")
+    chunks = []
+    flux2 = [10.0, 10.0]
+    names = set(args.scenarios.split(","))
+    if "thin" in names:
+        seps = [1.2] if args.quick else [1.8, 1.5, 1.2, 0.9, 0.6]
+        rows, counts, *_ = pair(thin_instrument(), 662.0, 0.3, 31, seps, flux2, METHODS,
+                                lambda s: f"thin {s:.1f} deg")
+        chunks.append("\n".join(counts) + table(rows, "thin mask pair (0.5 cm Pb, 662 keV)"))
+        print(chunks[-1], flush=True)
+    if "proto" in names:
+        from rotmod.config import load_instrument
+
+        pix = 5.0 / 60
+        seps = [35 / 60, 30 / 60] if args.quick else [v / 60 for v in (35, 30, 25, 20, 15, 10)]
+        rows, counts, *_ = pair(load_instrument("prototype"), 122.0, pix, 31, seps,
+                                [20.0, 20.0], METHODS, lambda s: f"proto {s * 60:.0f}'")
+        chunks.append("\n".join(counts) + table(rows, "lab prototype pairs (122 keV)"))
+        print(chunks[-1], flush=True)
+    if "field" in names:
+        inst = field_instrument()
+        grid = SkyGrid.paper()
+        t0 = time.perf_counter()
+        resp = build_response(inst, grid, TimeBinning(N_BINS, "average"), energy=662.0)
+        log.info("response %s in %.1f s", resp, time.perf_counter() - t0)
+        xy = [(-4.1, 3.1), (1.9, -0.9), (5.1, 5.1)]
+        flux = [10.0, 5.0, 3.0]
+        y, bkg, src = simulate(inst, grid, xy, flux, 662.0, seed=30)
+        rows: list = []
+        run_methods(resp, y, bkg, grid, src, flux, 1.0, METHODS, "field", rows)
+        chunks.append(f"field: {y.sum():.3g} counts (background {bkg:.2f} /s per detector)"
+                      + table(rows, "paper's 14 deg field, 70 x 70, 3 sources"))
+        print(chunks[-1], flush=True)
+    if args.out:
+        with open(args.out, "w") as fh:
+            fh.write(f"load average {os.getloadavg()}\n" + "\n\n".join(chunks) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -44,7 +44,7 @@ N_BINS, EXPOSURE_PER_BIN = 360, 10.0  # 3600 s observations, whole turns
 METHODS: list[tuple[str, str, dict]] = [
     ("backprojection", "backprojection", {}),
     ("mlem", "mlem", {}),
-    ("mlem x20", "mlem", {"max_iter": 10_000, "rel_tol": None}),
+    ("mlem 1e4", "mlem", {"max_iter": 10_000, "rel_tol": None, "chi2_dof": None}),
     ("mart", "mart", {}),
     ("sirt", "sirt", {}),
     ("osem", "osem", {}),

@@ -342,7 +342,10 @@ class NCAR(SIRT):
         "seed": None,
         "refit": True,
     }
-    default_stopping: ClassVar[StoppingRule] = StoppingRule(max_iter=1000, rel_tol=1e-8)
+    # As SGP's: converge (the discrepancy principle stops short of separating close pairs).
+    default_stopping: ClassVar[StoppingRule] = StoppingRule(
+        max_iter=1000, chi2_dof=None, rel_tol=1e-8
+    )
 
     def _check_params(self) -> None:
         super()._check_params()

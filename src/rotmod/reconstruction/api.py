@@ -20,7 +20,7 @@ __all__ = ["DEFAULT_METHOD", "reconstruct"]
 
 #: The method :func:`reconstruct` uses when none is named (the choice and its evidence:
 #: docs/reconstruction.md, "Choosing the default").
-DEFAULT_METHOD = "mlem"
+DEFAULT_METHOD = "ncar"
 
 
 def reconstruct(

@@ -326,7 +326,8 @@ class NCAR(SIRT):
     Notes
     -----
     Counts that are not integers (noiseless expectations) are split deterministically
-    in halves.  ``extras`` holds ``"unlayered"`` (the plain solution of the full data),
+    in halves.  Callbacks are called by every solve (full data, layers, refit).
+    ``extras`` holds ``"unlayered"`` (the plain solution of the full data),
     ``"layers"`` (``(K, ny, nx)``; in split mode the per-layer combination) and the
     iteration counts.  Cost: ``2K + 1`` solves plus the refit; with the SGP core the
     layers are warm-started, and the default ``K = 3`` keeps the total within about 5
@@ -369,11 +370,12 @@ class NCAR(SIRT):
             from rotmod.reconstruction.sgp import SGP
 
             solver: Reconstructor = SGP(self.response, data, stopping=self.stopping,
-                                        grid=self.grid)
+                                        grid=self.grid, callbacks=self.callbacks)
         else:
             solver = SIRT(
                 self.response, data, stopping=self.stopping, grid=self.grid,
                 relax=self.params["relax"], accelerate=self.params["accelerate"],
+                callbacks=self.callbacks,
             )
         if start is not None:
             solver.warm_start(start)
@@ -450,9 +452,10 @@ class NCAR(SIRT):
                 from rotmod.reconstruction.sgp import SGP
 
                 ref: Reconstructor = SGP(self.response, self.data, stopping=self.stopping,
-                                         grid=self.grid)
+                                         grid=self.grid, callbacks=self.callbacks)
             else:
-                ref = MART(self.response, self.data, stopping=self.stopping, grid=self.grid)
+                ref = MART(self.response, self.data, stopping=self.stopping, grid=self.grid,
+                           callbacks=self.callbacks)
             ref.warm_start(self.z)
             ref.setup()
             ref._record()

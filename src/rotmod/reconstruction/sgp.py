@@ -97,17 +97,19 @@ class SGP(Reconstructor):
     ``alpha = 1``, which is exactly an MLEM step.  The limit points are maxima of the
     likelihood on ``z >= 0`` (Bonettini et al. 2009, Thm 2.1); every iterate is >= 0.
     Stopping (:class:`StoppingRule`): by default when the relative deviance change per
-    iteration is below 1e-8 (converged), or after 1000 iterations; the discrepancy
+    iteration is below 1e-10 (converged), or after 1000 iterations; the discrepancy
     principle (``chi2_dof=1.0``) is available but off by default, because on low-contrast
     data it stops before close pairs separate (docs/reconstruction.md).
     """
 
     defaults: ClassVar[dict[str, Any]] = {}
-    # Converged maximum likelihood by default: on low-contrast data chi2/dof <= 1 is reached
-    # (within its +-sqrt(2/dof) noise) long before close pairs separate, so the discrepancy
-    # principle is opt-in (chi2_dof=1.0); the stop is the deviance no longer changing.
+    # Converge as far as 1000 iterations go: on low-contrast data chi2/dof <= 1 is reached
+    # (within its +-sqrt(2/dof) noise) long before close pairs separate, and the deviance
+    # settles (changes < 1e-8 per iteration) while the pair is still sharpening (measured:
+    # thin-mask pair dip 0.91 at the 1e-8 stop, 0.62 at 1000 iterations); so the
+    # discrepancy principle is opt-in (chi2_dof=1.0) and the relative-change rule is 1e-10.
     default_stopping: ClassVar[StoppingRule] = StoppingRule(
-        max_iter=1000, chi2_dof=None, rel_tol=1e-8
+        max_iter=1000, chi2_dof=None, rel_tol=1e-10
     )
     #: Penalty weight ``lambda`` of ``lambda sum_j s_j S_j`` (0: maximum likelihood).
     _lam: float = 0.0

@@ -126,6 +126,26 @@ def pair(inst, energy, pix, n_pix, seps, flux, methods, label_fmt, radius_frac=0
     return rows, counts, resp, grid
 
 
+def dip_vs_separation(rows, prefix: str, pix: float) -> str:
+    """Dip per method (rows) and separation (columns); ``(x)`` marks a failed criterion:
+    a peak more than one pixel off or a spurious peak >= 20 % of the weakest source."""
+    labels = list(dict.fromkeys(label for label, *_ in rows if label.startswith(prefix)))
+    names = list(dict.fromkeys(name for _, name, *_ in rows))
+    by = {(label, name): m for label, name, m, *_ in rows}
+    out = ["| method | " + " | ".join(labels) + " |", "|---" * (len(labels) + 1) + "|"]
+    for name in names:
+        cells = []
+        for label in labels:
+            m = by.get((label, name))
+            if m is None:
+                cells.append("")
+                continue
+            bad = m["loc_err_max"] > pix * (1 + 1e-6) or m["spurious_weakest"] >= 0.2
+            cells.append(f"{m.get('dip', float('nan')):.2f}" + (" (x)" if bad else ""))
+        out.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
 def versus_mlem(rows) -> str:
     """Rows where the default method is worse than MLEM (500 iterations) on localisation
     (by more than 0.01 deg) or on the spurious level (by more than 0.02)."""
@@ -201,7 +221,8 @@ def main() -> None:
         rows, counts, *_ = pair(thin_instrument(), 662.0, 0.3, 31, seps, flux2, METHODS,
                                 lambda s: f"thin {s:.1f} deg")
         every += rows
-        chunks.append("\n".join(counts) + table(rows, "thin mask pair (0.5 cm Pb, 662 keV)"))
+        chunks.append("\n".join(counts) + table(rows, "thin mask pair (0.5 cm Pb, 662 keV)")
+                      + "\n\n" + dip_vs_separation(rows, "thin", 0.3))
         print(chunks[-1], flush=True)
     if "proto" in names:
         from rotmod.config import load_instrument
@@ -211,7 +232,8 @@ def main() -> None:
         rows, counts, *_ = pair(load_instrument("prototype"), 122.0, pix, 31, seps,
                                 PROTO_FLUX, METHODS, lambda s: f"proto {s * 60:.0f}'")
         every += rows
-        chunks.append("\n".join(counts) + table(rows, "lab prototype pairs (122 keV)"))
+        chunks.append("\n".join(counts) + table(rows, "lab prototype pairs (122 keV)")
+                      + "\n\n" + dip_vs_separation(rows, "proto", pix))
         print(chunks[-1], flush=True)
     if "field" in names:
         inst = field_instrument()

@@ -92,9 +92,9 @@ def test_sgp_reaches_the_likelihood_of_10000_mlem_iterations(thin: Counting) -> 
           (("ref", ref), ("sgp", sgp), ("short", short))}
     # 300 SGP iterations (the cost of 300 MLEM ones) reach the likelihood of 10^4 MLEM
     # iterations within 0.5 (a log-likelihood difference of 0.5 is a 1-sigma change of
-    # one parameter: statistically nothing) ...
+    # one parameter: statistically nothing; measured: 2.4 *above* it) ...
     assert ll["sgp"] >= ll["ref"] - 0.5
-    # ... where 300 MLEM iterations are still far from it (measured ~20 below): the
+    # ... where 300 MLEM iterations are still far from it (measured 124 below): the
     # acceleration is real, not a property of an easy problem.
     assert ll["short"] < ll["ref"] - 5.0
     assert np.all(sgp.image >= 0)
@@ -223,6 +223,31 @@ def test_default_method_resolves_a_thin_mask_pair_that_mlem_does_not(pair_op: Co
     assert d["dip"] < 0.8 and d["loc_err_max"] < 0.3 and d["spurious_weakest"] < 0.2, d
     # Plain MLEM (500 iterations) sees one blob (measured dip ~1).
     assert out["mlem"]["dip"] > 0.9
+
+
+def test_default_method_resolves_a_prototype_pair_at_30_arcmin() -> None:
+    # Reduced lab-prototype scenario (the preset: b/L = 1.9 deg = 114'): two equal 122 keV
+    # sources 30' (0.26 b/L, 6 pixels of 5') apart, background counts = source counts,
+    # 120 time bins of 30 s (8.3e6 counts), three noise realisations.
+    from rotmod.config import load_instrument
+
+    inst = load_instrument("prototype")
+    pix = 5.0 / 60.0
+    grid = SkyGrid((15, 15), pix, (1.0, 0.0))
+    th, ph = grid.directions()
+    xi = (np.arange(120) + 0.5) * 2 * np.pi / 120
+    op = Counting(get_model("exact").profile(inst, rad(th), rad(ph), rad(xi), energy=122),
+                  grid)
+    src, E = _sky(op, [(4, 7), (10, 7)], 60.0), 30.0
+    bkg = float(np.mean(op.forward(src)))
+    sources = grid.from_tangent(np.array([1.0, 1.0]), np.array([-3 * pix, 3 * pix]))
+    for seed in range(3):
+        y = _noisy(op, src, E, bkg, seed=seed)
+        res = reconstruct(op, y, exposure=E, background=bkg, seed=2)
+        m = evaluate(res, grid, sources, true_flux=[60.0, 60.0], radius=0.225)
+        # Resolved (measured dips 0.33-0.52 for these seeds, 0.33-0.77 over six), each
+        # peak on its pixel (measured <= 0.01 deg; a pixel is 0.083 deg), nothing else.
+        assert m["dip"] < 0.8 and m["loc_err_max"] < pix and m["spurious_weakest"] < 0.2, m
 
 
 def test_default_method_is_registered_and_used() -> None:

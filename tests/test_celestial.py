@@ -213,7 +213,11 @@ def test_an_extended_disc_goes_through_the_same_path() -> None:
     half_max_pixels = {}
     for name, pts, n in (("disc", disc_points(centre, 1.5, n=40), 40), ("point", centre, 1)):
         src = PointSources.from_sky(pts, att, rate=80.0 / n, energy=122.0)
-        res = reconstruct(resp, fold(simulate_observation(inst, src, t_stop=1200.0, seed=6), 90))
+        # MLEM, stopped by the discrepancy principle, as when this was measured: the default
+        # (NCAR on SGP, iterated to convergence) breaks a disc into a few peaks (2 pixels
+        # above half maximum, 36 above 10 %; docs/reconstruction.md, default method).
+        folded = fold(simulate_observation(inst, src, t_stop=1200.0, seed=6), 90)
+        res = reconstruct(resp, folded, "mlem")
         iy, ix = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
         assert grid.wcs().pixel_to_world(ix, iy).separation(centre).deg < 0.5 * np.sqrt(2)
         half_max_pixels[name] = int(np.sum(res.image > 0.5 * res.image.max()))

@@ -61,7 +61,9 @@ def _point(R: Dense, iy: int, ix: int, flux: float = 5.0) -> np.ndarray:
     return s
 
 
-@pytest.mark.parametrize("method", ["backprojection", "mlem", "mart", "sirt", "ncar"])
+@pytest.mark.parametrize(
+    "method", ["backprojection", "mlem", "mart", "sirt", "ncar", "osem", "sgp", "sparse"]
+)
 def test_noiseless_point_source_lands_on_its_pixel(small: Dense, method: str) -> None:
     E = 50.0
     y = E * (small.forward(_point(small, 3, 7)) + 2.0)

@@ -37,8 +37,9 @@ def register(sub: Any) -> None:
     p.add_argument("response", metavar="RESPONSE",
                    help="response store (zarr, from rotmod response: a matrix or a Radon "
                    "table)")
-    p.add_argument("--method", default="mlem", metavar="NAME",
-                   help="algorithm (backprojection, mlem, mart, sirt, ncar; default mlem)")
+    p.add_argument("--method", default=None, metavar="NAME",
+                   help="algorithm (backprojection, mlem, osem, mart, sirt, sgp, sparse, ncar; "
+                   "default: the library's default, rotmod.reconstruction.api.DEFAULT_METHOD)")
     p.add_argument("--max-iter", type=count(1), default=None, metavar="N",
                    help="iteration limit (default: the method's)")
     p.add_argument("--fit-background", action="store_true",
@@ -67,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     rsp = check_input(args.response, "response")
     out = check_output(args.output, args.overwrite, inputs=(src, rsp))
     plot = check_plot(args.plot, args.overwrite)
-    if args.method not in ALGORITHMS:
+    if args.method is not None and args.method not in ALGORITHMS:
         raise UserError(f"--method: must be one of {', '.join(sorted(ALGORITHMS))}, got "
                         f"{args.method!r}")
     folded = read_folded(src)
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         kw["fit_background"] = True
     if args.uncertainty:
         kw.update(uncertainty="bootstrap", n_boot=args.uncertainty)
-    with iteration_bar(progress_wanted(args), args.method) as bar:
+    with iteration_bar(progress_wanted(args), args.method or "reconstruct") as bar:
         if bar is not None:
             kw["callbacks"] = [lambda _solver, _it: bool(bar.update(1))]
         res = reconstruct(response, folded, args.method, seed=args.seed, **kw)
@@ -96,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
                 meta={"folded": str(src), "response": str(rsp), **info,
                       "exposure": float(np.sum(folded.gti[:, 1] - folded.gti[:, 0]))})
     peak = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
-    say(f"rotmod: {args.method}: {res.n_iter} iteration(s), stop: {res.stop_reason}, "
+    say(f"rotmod: {res.method}: {res.n_iter} iteration(s), stop: {res.stop_reason}, "
         f"chi2/dof {res.chi2_dof:.3g}, peak at pixel (iy, ix) = {tuple(int(v) for v in peak)}")
     say(f"rotmod: wrote {out}")
     if plot is not None:
@@ -108,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
             m = np.array(args.mark)  # deg, checked by argparse
             marks = (m[:, 0], m[:, 1])
         ax = plot_image(res.image, res.grid, sources=marks,
-                        title=f"{args.method} ({response.metadata()['model']['model']})")
+                        title=f"{res.method} ({response.metadata()['model']['model']})")
         save_figure(ax.figure, plot)
         say(f"rotmod: wrote {plot}")
     return 0

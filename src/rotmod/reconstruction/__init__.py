@@ -8,7 +8,8 @@ Algorithms use only the response's ``forward``, ``adjoint`` and ``sensitivity``.
 """
 
 from rotmod.reconstruction import algorithms as _algorithms  # noqa: F401  (registers)
-from rotmod.reconstruction.algorithms import MART, MLEM, NCAR, SIRT, BackProjection
+from rotmod.reconstruction import sgp as _sgp  # noqa: F401  (registers)
+from rotmod.reconstruction.algorithms import MART, MLEM, NCAR, OSEM, SIRT, BackProjection
 from rotmod.reconstruction.api import reconstruct
 from rotmod.reconstruction.base import (
     ALGORITHMS,
@@ -20,6 +21,7 @@ from rotmod.reconstruction.base import (
 )
 from rotmod.reconstruction.bootstrap import bootstrap_images
 from rotmod.reconstruction.data import ForwardModel, PoissonData, as_data
+from rotmod.reconstruction.sgp import SGP, Sparse, select_weight, thin_counts
 from rotmod.reconstruction.stats import chi2, deviance, log_likelihood
 
 __all__ = [
@@ -27,12 +29,15 @@ __all__ = [
     "MART",
     "MLEM",
     "NCAR",
+    "OSEM",
+    "SGP",
     "SIRT",
     "BackProjection",
     "ForwardModel",
     "PoissonData",
     "ReconstructionResult",
     "Reconstructor",
+    "Sparse",
     "StoppingRule",
     "as_data",
     "bootstrap_images",
@@ -42,4 +47,6 @@ __all__ = [
     "log_likelihood",
     "reconstruct",
     "register_algorithm",
+    "select_weight",
+    "thin_counts",
 ]

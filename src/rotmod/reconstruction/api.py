@@ -16,13 +16,17 @@ from rotmod.reconstruction.base import ReconstructionResult, get_algorithm
 from rotmod.reconstruction.bootstrap import bootstrap_images
 from rotmod.response.operator import ResponseOperator
 
-__all__ = ["reconstruct"]
+__all__ = ["DEFAULT_METHOD", "reconstruct"]
+
+#: The method :func:`reconstruct` uses when none is named (the choice and its evidence:
+#: docs/reconstruction.md, "Choosing the default").
+DEFAULT_METHOD = "ncar"
 
 
 def reconstruct(
     response: ResponseOperator,
     data: Any,
-    method: str = "mlem",
+    method: str | None = None,
     *,
     uncertainty: str | None = None,
     n_boot: int = 20,
@@ -37,8 +41,9 @@ def reconstruct(
     response : ResponseOperator
     data : PoissonData, FoldedProfiles or ndarray
         Folded counts (and exposure, background; see :class:`Reconstructor`).
-    method : str
-        ``"backprojection"``, ``"mlem"``, ``"mart"`` or ``"ncar"`` (see ``ALGORITHMS``).
+    method : str, optional
+        A name in ``ALGORITHMS`` (``"backprojection"``, ``"mlem"``, ``"osem"``, ``"mart"``,
+        ``"sirt"``, ``"sgp"``, ``"sparse"``, ``"ncar"``); default :data:`DEFAULT_METHOD`.
     uncertainty : {None, "bootstrap"}
         ``"bootstrap"`` adds a per-pixel one-sigma map from ``n_boot`` reconstructions of
         Poisson re-draws of the data (same method and parameters).
@@ -61,7 +66,7 @@ def reconstruct(
     ParameterError
         Unknown method or parameter, bad data or shapes.
     """
-    cls = get_algorithm(method)
+    cls = get_algorithm(DEFAULT_METHOD if method is None else method)
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     own, boot_ss = ss.spawn(2)
     if "seed" in cls.defaults and "seed" not in params:

@@ -52,6 +52,14 @@ def _check_float(value: Any, name: str, lo: float, *, lo_open: bool = True,
     return v
 
 
+def _safe_div(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """``num / den`` where ``den > 0``, else 0 (ratios of counts to models, of
+    back-projections to sensitivities)."""
+    out = np.zeros(np.broadcast(num, den).shape)
+    np.divide(num, den, out=out, where=den > 0)
+    return out
+
+
 @dataclass(frozen=True)
 class StoppingRule:
     """When an iterative reconstruction stops (the first rule that holds, checked in order).
@@ -366,6 +374,11 @@ class Reconstructor(ABC):
         self.history["chi2"].append(c2)
         self.history["chi2_dof"].append(c2 / self.dof)
 
+    def _convergence_series(self) -> list[float]:
+        """What the relative-change rule watches: the deviance (penalised methods add
+        their penalty, so that they stop when their own objective settles)."""
+        return self.history["deviance"]
+
     def setup(self) -> None:
         """Initialise the estimate and the history."""
         self._t0 = time.perf_counter()
@@ -399,7 +412,7 @@ class Reconstructor(ABC):
                     reason = f"callback at iteration {self.iteration}"
             if reason is None:
                 reason = self.stopping.check(
-                    self.iteration, self.history["chi2_dof"], self.history["deviance"]
+                    self.iteration, self.history["chi2_dof"], self._convergence_series()
                 )
         log.debug("%s stopped after %d iterations: %s", self.name, self.iteration, reason)
         return reason

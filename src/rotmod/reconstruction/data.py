@@ -256,6 +256,23 @@ class ForwardModel:
             out[self.n_sky :] = np.sum(self.template * r, axis=1)
         return out
 
+    def forward_detectors(self, z: np.ndarray, detectors: np.ndarray) -> np.ndarray:
+        """Expected counts of some detectors only, ``(len(detectors), n_time)``."""
+        sky, beta = self.split(z)
+        E = self.E[detectors]
+        mu = E * self.response.forward_detectors(sky, detectors) + self.fixed[detectors]
+        if self.template is not None:
+            mu = mu + beta[detectors, None] * self.template[detectors]
+        return mu
+
+    def adjoint_detectors(self, r: np.ndarray, detectors: np.ndarray) -> np.ndarray:
+        """``K_D^T r`` for count-space ``r`` of some detectors ``D`` (the rest taken as 0)."""
+        out = np.zeros(self.size)
+        out[: self.n_sky] = self.response.adjoint_detectors(self.E[detectors] * r, detectors)
+        if self.template is not None:
+            out[self.n_sky :][detectors] = np.sum(self.template[detectors] * r, axis=1)
+        return out
+
     def sensitivity(self) -> np.ndarray:
         """``K^T 1``: expected counts per unit of each unknown."""
         if self._sens is None:

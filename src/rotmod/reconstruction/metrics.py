@@ -123,18 +123,31 @@ def localization_errors(
     return np.asarray(errs)
 
 
-def spurious_peak_level(image: Any, grid: Any, sources: Any, *, radius: float) -> float:
-    """Strongest local maximum outside every source region over the strongest true peak.
+def spurious_peak_level(image: Any, grid: Any, sources: Any, *, radius: float,
+                        relative_to: str = "strongest") -> float:
+    """Strongest local maximum outside every source region over a true peak.
 
-    The true peak is the brightest pixel inside the source regions; 0 when no positive
-    peak lies outside; ``inf`` when the source regions hold nothing positive.
+    ``relative_to="strongest"``: over the brightest pixel inside the source regions;
+    ``"weakest"``: over the weakest source's peak (the brightest pixel of each source
+    region, the smallest of those) — the level a spurious peak must stay below not to be
+    mistaken for the faintest real source.  0 when no positive peak lies outside; ``inf``
+    when the reference peak is not positive.
     """
     img = _check_image(image, grid)
+    if relative_to not in ("strongest", "weakest"):
+        raise ParameterError(
+            f"relative_to must be 'strongest' or 'weakest', got {relative_to!r}"
+        )
     xs, ys = _tangent(grid, sources)
     inside = np.zeros(img.shape, dtype=bool)
+    regions = []
     for x0, y0 in zip(xs, ys, strict=True):
-        inside |= _dist_map(grid, x0, y0) <= radius
-    true_peak = float(img[inside].max()) if inside.any() else 0.0
+        regions.append(_dist_map(grid, x0, y0) <= radius)
+        inside |= regions[-1]
+    if relative_to == "weakest":
+        true_peak = min(float(img[r].max()) if r.any() else 0.0 for r in regions)
+    else:
+        true_peak = float(img[inside].max()) if inside.any() else 0.0
     outside = [img[iy, ix] for iy, ix in find_peaks(img) if not inside[iy, ix]]
     spur = max(outside) if outside else 0.0
     if true_peak <= 0:
@@ -249,7 +262,8 @@ def evaluate(
     Returns
     -------
     dict
-        ``loc_err_max`` (deg), ``spurious`` (ratio), ``fwhm`` (deg), ``fwhm_over_bL``,
+        ``loc_err_max`` (deg), ``spurious`` (ratio to the strongest true peak),
+        ``spurious_weakest`` (ratio to the weakest source's peak), ``fwhm`` (deg), ``fwhm_over_bL``,
         ``dip`` (two sources only), ``flux_ratio``, ``chi2_dof``, ``deviance_dof``,
         ``n_iter``, ``run_time``.
     """
@@ -260,6 +274,8 @@ def evaluate(
     out: dict[str, float] = {
         "loc_err_max": float(np.max(loc)) if np.all(np.isfinite(loc)) else float("nan"),
         "spurious": spurious_peak_level(img, grid, (th, ph), radius=radius),
+        "spurious_weakest": spurious_peak_level(img, grid, (th, ph), radius=radius,
+                                                relative_to="weakest"),
         "flux_ratio": recovered_flux(img, grid, (th, ph), true_flux, radius=radius),
         "chi2_dof": float(result.chi2_dof),
         "deviance_dof": float(result.deviance / max(result.dof, 1)),

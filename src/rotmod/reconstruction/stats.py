@@ -12,20 +12,25 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["chi2", "deviance", "log_likelihood"]
+__all__ = ["chi2", "deviance", "deviance_terms", "log_likelihood"]
 
 _MU_FLOOR = 1e-12
 
 
-def deviance(y: np.ndarray, mu: np.ndarray, valid: np.ndarray | None = None) -> float:
-    """Poisson deviance ``2 sum(mu - y + y ln(y / mu))`` over ``valid`` bins."""
+def deviance_terms(y: np.ndarray, mu: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """Per-bin Poisson deviance ``2 (mu - y + y ln(y / mu))`` of the ``valid`` bins (flat)."""
     y = np.asarray(y, dtype=float)
     m = np.maximum(np.asarray(mu, dtype=float), _MU_FLOOR)
     if valid is not None:
         y, m = y[valid], m[valid]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(y > 0, y * np.log(y / m), 0.0)
-    return float(2.0 * np.sum(m - y + t))
+    return 2.0 * (m - y + t)
+
+
+def deviance(y: np.ndarray, mu: np.ndarray, valid: np.ndarray | None = None) -> float:
+    """Poisson deviance ``2 sum(mu - y + y ln(y / mu))`` over ``valid`` bins."""
+    return float(np.sum(deviance_terms(y, mu, valid)))
 
 
 def log_likelihood(y: np.ndarray, mu: np.ndarray, valid: np.ndarray | None = None) -> float:

@@ -71,6 +71,20 @@ class MaterialisedResponse(ResponseOperator):
         y = np.asarray(counts, dtype=self.dtype).ravel()
         return y @ self._flat
 
+    def forward_detectors(self, sky: np.ndarray, detectors: np.ndarray) -> np.ndarray:
+        """``(P S)[detectors]``: only those detectors' rows (one product per detector)."""
+        x = np.asarray(self._check_sky(sky), dtype=self.dtype)
+        return np.stack([self.matrix[d] @ x for d in np.asarray(detectors).ravel()])
+
+    def adjoint_detectors(self, counts: np.ndarray, detectors: np.ndarray) -> np.ndarray:
+        """``P_D^T Y`` from only those detectors' rows."""
+        det = np.asarray(detectors).ravel()
+        y = np.asarray(counts, dtype=self.dtype).reshape(det.size, self.n_time)
+        out = np.zeros(self.n_sky, dtype=self.dtype)
+        for k, d in enumerate(det):
+            out += y[k] @ self.matrix[d]
+        return out
+
     def todense(self) -> np.ndarray:
         """The matrix ``P[d, t, n]`` (no copy)."""
         return self.matrix

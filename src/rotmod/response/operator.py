@@ -85,6 +85,22 @@ class ResponseOperator(ABC):
         """``P^T Y``: sky vector ``(n_sky,)`` of folded data ``counts`` ``(n_det, n_time)``."""
         return self._adjoint(self._check_counts(counts))
 
+    def forward_detectors(self, sky: np.ndarray, detectors: np.ndarray) -> np.ndarray:
+        """``(P S)[detectors]``: folded rates ``(len(detectors), n_time)`` of some detectors.
+
+        For block-iterative solvers (ordered subsets).  The default computes the whole
+        product and keeps the rows; operators that can do less work override it.
+        """
+        return self.forward(sky)[np.asarray(detectors)]
+
+    def adjoint_detectors(self, counts: np.ndarray, detectors: np.ndarray) -> np.ndarray:
+        """``P_D^T Y``: sky vector ``(n_sky,)`` of data ``(len(detectors), n_time)`` of some
+        detectors ``D`` (the others taken as 0).  Default: the full adjoint, zero-padded."""
+        det = np.asarray(detectors)
+        full = np.zeros((self.n_det, self.n_time), dtype=np.result_type(counts, np.float32))
+        full[det] = counts
+        return self.adjoint(full)
+
     @cached_property
     def _sensitivity(self) -> np.ndarray:
         return self._adjoint(np.ones((self.n_det, self.n_time)))

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 from numba import njit, prange
+from numba.extending import overload
 
 from rotmod._validate import as_int, as_scalar
 from rotmod.errors import ParameterError
@@ -85,6 +86,22 @@ def _cubic(f: float) -> tuple[float, float, float, float]:
             fp1 * f * fm1 * sixth)
 
 
+def _like(x: float, like: Any) -> Any:
+    """``x`` in the type of ``like`` (inside kernels: float32 weights for float32 arrays, so
+    the scatter loops do no conversions)."""
+    return x
+
+
+@overload(_like, inline="always")
+def _like_impl(x, like):  # numba compares these names (unannotated) with impl's
+    target = like
+
+    def impl(x, like):
+        return target(x)
+
+    return impl
+
+
 @njit(parallel=True, cache=True, fastmath=_FMA)
 def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out):
     """``out[a, k, r] += sum_n v[n, r] B_k(w_n(a))`` (cubic weights ``B``), one angle per
@@ -100,6 +117,8 @@ def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out):
             x = k0 + (tx[n] * c - ty[n] * s) * inv_dw
             i = int(x)
             b0, b1, b2, b3 = _cubic(x - i)
+            b0, b1, b2, b3 = _like(b0, o[0, 0]), _like(b1, o[0, 0]), _like(b2, o[0, 0]), \
+                _like(b3, o[0, 0])
             for r in range(n_r):
                 vr = v[n, r]
                 o[i - 1, r] += b0 * vr
@@ -128,6 +147,8 @@ def _gather(tx, ty, cos_a, sin_a, k0, inv_dw, gg, chunk, acc):
                 x = k0 + (tx[n] * c - ty[n] * s) * inv_dw
                 i = int(x)
                 b0, b1, b2, b3 = _cubic(x - i)
+                b0, b1, b2, b3 = _like(b0, g[0, 0]), _like(b1, g[0, 0]), _like(b2, g[0, 0]), \
+                    _like(b3, g[0, 0])
                 for r in range(n_r):
                     acc[n, r] += (b0 * g[i - 1, r] + b1 * g[i, r] + b2 * g[i + 1, r]
                                   + b3 * g[i + 2, r])
@@ -313,10 +334,15 @@ def _adjoint_block(blk: tuple[int, int], f: _Factors, y: np.ndarray) -> np.ndarr
     else:
         gg = np.zeros((n_ang, f.table.shape[1]), dtype=f.table.dtype)
         _rows_adjoint(f.table, ya, jx, ax, f.k_lo[sl], f.k_hi[sl], gg)
-    acc = np.zeros((f.tx.size, f.n_q))
+    # In the table's type: float32 sums of a block's angles (~1e-6 relative) are far below the
+    # interpolation tolerance, and the loop then does no conversions; blocks add in float64.
+    acc = np.zeros((f.tx.size, f.n_q), dtype=f.table.dtype)
+    # 64 chunks of pixels (the work is shared evenly by any number of threads, and the sums
+    # do not depend on it); at least 256 pixels each.
+    chunk = max(256, -(-f.tx.size // 64))
     _gather(f.tx, f.ty, f.cos_a[sl], f.sin_a[sl], f.k0, f.inv_dw,
-            gg.reshape(n_ang, f.n_w, f.n_q), 4096, acc)
-    return np.einsum("nr,nr->n", acc, f.q_weights)
+            gg.reshape(n_ang, f.n_w, f.n_q), chunk, acc)
+    return np.einsum("nr,nr->n", acc, f.q_weights, dtype=np.float64)
 
 
 class RadonResponse(ResponseOperator):

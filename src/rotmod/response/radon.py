@@ -52,7 +52,8 @@ from rotmod.response.operator import ResponseOperator
 __all__ = ["RadonResponse"]
 
 #: Interpolation error of the table: ``max abs(dP) ~ ERROR_LAW step^1.5``, ``step`` the table
-#: spacing in ``u`` in detector radii (cubic in ``w``; linear in ``x`` at half the step).
+#: spacing in ``u`` in detector radii (cubic in ``w``; in ``x`` cubic, or linear at half the
+#: step).
 #: Chosen so that the measured error stays below the tolerance with a margin: at most 0.86
 #: of it on the paper's whole grid and random geometries (docs/response.md).
 ERROR_LAW = 0.15
@@ -60,9 +61,13 @@ ERROR_LAW = 0.15
 RING_SHARE = 0.1
 #: Most ``q`` nodes (the Chebyshev bound needs more only for absurd fields).
 MAX_RINGS = 10
-#: Use one BLAS product for all table rows when ``J <= GEMM_ROWS * n_det`` (else one dot per
-#: detector and tap): measured break-even ~13 n_det on this machine (docs/response.md).
-GEMM_ROWS = 12
+#: Detector stage: with ``J`` the rows of a table cubic in the detector offset, use one BLAS
+#: product of every row with every projection when ``J <= GEMM_ROWS * n_det`` (and keep the
+#: cubic table: its cost is ``J``, its taps are free), else two dot products per detector
+#: and angle on a table linear in the offset at half the step (as accurate; two rows read
+#: instead of four).  Break-even measured between J / n_det = 9 (BLAS 4x faster, the wide
+#: field) and 30 (rows 2x faster, the paper's grid) on this machine (docs/response.md).
+GEMM_ROWS = 16
 #: Target bytes of one block of splatted angles.
 BLOCK_BYTES = 64 << 20
 
@@ -76,8 +81,8 @@ _FMA = {"contract"}
 
 
 @njit(cache=True, inline="always", fastmath=_FMA)
-def _cubic(f: float) -> tuple[float, float, float, float]:
-    """Lagrange weights of the nodes -1, 0, 1, 2 at ``f`` in [0, 1)."""
+def _cubic(f: Any) -> tuple[Any, Any, Any, Any]:
+    """Lagrange weights of the nodes -1, 0, 1, 2 at ``f`` in [0, 1) (a float or an array)."""
     fm1 = f - 1.0
     fm2 = f - 2.0
     fp1 = f + 1.0
@@ -220,7 +225,7 @@ def _dense(tab, tx, ty, qw, cos_a, sin_a, k0, inv_dw, jx, ax, n_sub, out):
                 x = k0 + (tx[n] * cos_a[a] - ty[n] * sin_a[a]) * inv_dw
                 i = int(x)
                 b = _cubic(x - i)
-                for tap in range(2):
+                for tap in range(jx.shape[2]):
                     row = tab[jx[d, a, tap]]
                     for m in range(4):
                         k = (i - 1 + m) * n_r
@@ -289,8 +294,8 @@ class _Factors:
     q_weights: np.ndarray  # (N, R)
     cos_a: np.ndarray  # (n_angles,) every sub-sample of every distinct bin
     sin_a: np.ndarray
-    jx: np.ndarray  # (D, n_angles, 2) table rows of each detector and angle
-    ax: np.ndarray  # (D, n_angles, 2) their (linear) weights, / n_sub
+    jx: np.ndarray  # (D, n_angles, taps) table rows of each detector and angle
+    ax: np.ndarray  # (D, n_angles, taps) their weights (cubic: 4 taps, linear: 2), / n_sub
     k_lo: np.ndarray  # (n_angles,) used range of the flattened splat row
     k_hi: np.ndarray
     n_sub: int
@@ -451,9 +456,13 @@ class RadonResponse(ResponseOperator):
         dw = step / big_l
         k0 = math.ceil(t_max / dw) + 3
         n_w = 2 * k0 + 1
-        # Linear in the detector offset at half the step: as accurate as cubic at the full
-        # step (measured), and two table rows per detector and angle instead of four.
-        n_x = max(4, math.ceil(2.0 * period / step))
+        # The detector stage (GEMM_ROWS): cubic in the detector offset at the full step with
+        # one BLAS product, or linear at half the step (as accurate, measured) with two dot
+        # products per detector and angle.
+        n_x = max(4, math.ceil(period / step))
+        gemm = n_x <= GEMM_ROWS * self.n_det
+        if not gemm:
+            n_x = max(4, math.ceil(2.0 * period / step))
         tau_per_q = mu * h if mu != 0.0 else 0.0
         q_lo, q_hi = (float(q.min()), float(q.max())) if n_pix else (1.0, 1.0)
         if math.isinf(mu):
@@ -482,9 +491,13 @@ class RadonResponse(ResponseOperator):
         pos = det.positions
         delta = np.mod(pos[:, 0:1] * cos_a - pos[:, 1:2] * sin_a, period) * (n_x / period)
         base = np.floor(delta)
-        jx = (base.astype(np.int64)[..., None] + np.arange(2)) % n_x
         frac = delta - base
-        ax = np.stack([1.0 - frac, frac], axis=-1) / tb.n_sub
+        if gemm:
+            jx = (base.astype(np.int64)[..., None] + np.arange(-1, 3)) % n_x
+            ax = np.stack(_cubic(frac), axis=-1) / tb.n_sub  # the kernel's weights, on arrays
+        else:
+            jx = (base.astype(np.int64)[..., None] + np.arange(2)) % n_x
+            ax = np.stack([1.0 - frac, frac], axis=-1) / tb.n_sub
         # Used w range per angle: w is linear in t, so its extremes over the pixels lie
         # within those over the corners of their bounding box.
         if n_pix:
@@ -513,7 +526,7 @@ class RadonResponse(ResponseOperator):
             q_weights=np.ascontiguousarray(_lagrange(q[perm], q_nodes), dtype=dt),
             cos_a=cos_a, sin_a=sin_a, jx=np.ascontiguousarray(jx),
             ax=np.ascontiguousarray(ax, dtype=dt), k_lo=k_lo, k_hi=k_hi,
-            n_sub=tb.n_sub, gemm=n_x <= GEMM_ROWS * self.n_det,
+            n_sub=tb.n_sub, gemm=gemm,
         )
 
     def _table(self, a, b, h, big_l, radius, mu, period, n_x, n_w, k0, dw, q_nodes):

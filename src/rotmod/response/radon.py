@@ -107,6 +107,16 @@ def _like_impl(x, like):  # numba compares these names (unannotated) with impl's
     return impl
 
 
+@njit(cache=True, inline="always", fastmath=_FMA)
+def _node(txn, tyn, c, s, k0, inv_dw, like):
+    """A pixel's first ``w`` node ``i`` at one angle and the cubic weights of nodes ``i - 1``
+    to ``i + 2``, in the type of ``like``."""
+    x = k0 + (txn * c - tyn * s) * inv_dw
+    i = int(x)
+    b0, b1, b2, b3 = _cubic(x - i)
+    return i, _like(b0, like), _like(b1, like), _like(b2, like), _like(b3, like)
+
+
 @njit(parallel=True, cache=True, fastmath=_FMA)
 def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out, n_r):
     """``out[a, k, r] += sum_n v[n, r] B_k(w_n(a))`` (cubic weights ``B``), one angle per
@@ -121,11 +131,7 @@ def _splat(tx, ty, v, cos_a, sin_a, k0, inv_dw, out, n_r):
         s = sin_a[a]
         o = out[a]
         for n in range(n_pix):
-            x = k0 + (tx[n] * c - ty[n] * s) * inv_dw
-            i = int(x)
-            b0, b1, b2, b3 = _cubic(x - i)
-            b0, b1, b2, b3 = _like(b0, o[0, 0]), _like(b1, o[0, 0]), _like(b2, o[0, 0]), \
-                _like(b3, o[0, 0])
+            i, b0, b1, b2, b3 = _node(tx[n], ty[n], c, s, k0, inv_dw, o[0, 0])
             for r in range(n_r):
                 vr = v[n, r]
                 o[i - 1, r] += b0 * vr
@@ -151,11 +157,7 @@ def _gather(tx, ty, cos_a, sin_a, k0, inv_dw, gg, chunk, acc, n_r):
             s = sin_a[a]
             g = gg[a]
             for n in range(n0, n1):
-                x = k0 + (tx[n] * c - ty[n] * s) * inv_dw
-                i = int(x)
-                b0, b1, b2, b3 = _cubic(x - i)
-                b0, b1, b2, b3 = _like(b0, g[0, 0]), _like(b1, g[0, 0]), _like(b2, g[0, 0]), \
-                    _like(b3, g[0, 0])
+                i, b0, b1, b2, b3 = _node(tx[n], ty[n], c, s, k0, inv_dw, g[0, 0])
                 for r in range(n_r):
                     acc[n, r] += (b0 * g[i - 1, r] + b1 * g[i, r] + b2 * g[i + 1, r]
                                   + b3 * g[i + 2, r])
@@ -224,9 +226,8 @@ def _dense(tab, tx, ty, qw, cos_a, sin_a, k0, inv_dw, jx, ax, n_sub, out):
             total = 0.0
             for sub in range(n_sub):
                 a = t * n_sub + sub
-                x = k0 + (tx[n] * cos_a[a] - ty[n] * sin_a[a]) * inv_dw
-                i = int(x)
-                b = _cubic(x - i)
+                i, b0, b1, b2, b3 = _node(tx[n], ty[n], cos_a[a], sin_a[a], k0, inv_dw, total)
+                b = (b0, b1, b2, b3)
                 for tap in range(jx.shape[2]):
                     row = tab[jx[d, a, tap]]
                     for m in range(4):

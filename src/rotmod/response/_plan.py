@@ -16,7 +16,7 @@ import numpy as np
 
 from rotmod._validate import as_float_dtype, as_scalar
 from rotmod.errors import ParameterError
-from rotmod.geometry import DetectorArray, Instrument
+from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
 from rotmod.profiles.base import (
     DEFAULT_MODEL,
@@ -39,7 +39,7 @@ def _select_detectors(instrument: Instrument, detectors: Any) -> Instrument:
         raise ParameterError(f"detectors must be a non-empty list of indices, got {detectors!r}")
     if np.any(idx < 0) or np.any(idx >= n):
         raise ParameterError(f"detectors must be indices in [0, {n - 1}], got {idx.tolist()}")
-    det = DetectorArray(instrument.detectors.positions[idx], instrument.detectors.diameter)
+    det = instrument.detectors.with_positions(instrument.detectors.positions[idx])
     return Instrument(instrument.mask, det, instrument.rotation_period)
 
 
@@ -67,12 +67,15 @@ class ResponsePlan:
     def n_distinct(self) -> int:
         """Number of leading time bins that determine the whole response.
 
-        With an even number of bins ``N`` and a half-turn-symmetric model, bin ``t + N/2``
-        is bin ``t`` turned by exactly half a turn (sub-samples included), so
+        With an even number of bins ``N``, a half-turn-symmetric model and a mask that a half
+        turn maps onto itself (:attr:`Mask.half_turn_symmetric`: every mask but an
+        asymmetric slat pattern; an offset or tilted axis keeps the symmetry), bin
+        ``t + N/2`` is bin ``t`` turned by exactly half a turn (sub-samples included), so
         ``P[:, t + N/2] = P[:, t]`` and only the first ``N/2`` bins are computed.
         """
         n = self.time_bins.n_bins
-        return n // 2 if n % 2 == 0 and self.model.half_turn_symmetric else n
+        symmetric = self.model.half_turn_symmetric and self.instrument.mask.half_turn_symmetric
+        return n // 2 if n % 2 == 0 and symmetric else n
 
     def _sub_geometry(self, d0: int, d1: int, n0: int, n1: int) -> ProjectedGeometry:
         g = self.geom
@@ -88,6 +91,8 @@ class ResponsePlan:
             tau=c(g.tau[n0:n1]),
             theta=c(g.theta[n0:n1]),
             phi=c(g.phi[n0:n1]),
+            positions=c(g.positions[d0:d1]),
+            distance=c(g.distance[n0:n1]),
         )
 
     def block(
@@ -159,7 +164,7 @@ def make_plan(
                  hint="use larger pixels or a smaller field")
     theta, phi = grid.directions()
     geom = project(inst, theta, phi, e)
-    mdl.check_validity(inst, geom)
+    mdl.validate(inst, geom)
     return ResponsePlan(mdl, inst, grid, tb, e, dt, geom)
 
 

@@ -188,6 +188,22 @@ def _gl(gx, gw, t1: float, t2: float, ky: float) -> float:
     return acc * h
 
 
+@njit(cache=True, inline="always")
+def n_subpieces(ya: float, yb: float, de: float) -> int:
+    """Number of equal sub-pieces (in ``y``) of ``[ya, yb]`` (distance from the disc's nearer
+    edge, in radii) for the Gauss–Legendre rule in ``t = sqrt(y)``: the exponent may change
+    by at most ``_CLIP_DE`` (it changes by ``de`` over the piece) and the far edge's branch
+    point must lie outside each sub-piece's Bernstein ellipse of parameter ``_CLIP_XI``."""
+    # Longest sub-piece (in y) with xi >= _CLIP_XI: for a sub-piece of length L whose mid is
+    # at t, xi = 4 t (sqrt 2 - t) / L, concave in t, so the worst sub-pieces are the one at
+    # the edge (t >= sqrt(L)/2, xi >= 2 sqrt(2/L) - 1) and the one at the far end (t <= tb).
+    tb = math.sqrt(yb)
+    ymax = 8.0 / (_CLIP_XI + 1.0) ** 2
+    if tb > 0.5 * _SQRT2:
+        ymax = min(ymax, 4.0 * tb * (_SQRT2 - tb) / _CLIP_XI)
+    return max(math.ceil(de / _CLIP_DE), math.ceil((yb - ya) / ymax), 1)
+
+
 @njit(cache=True, fastmath=_VEC, error_model="numpy")
 def _clip_t(ya: float, yb: float, ea: float, ky: float) -> float:
     """``∫ exp(-(ea + ky (y - ya))) dΦ`` over ``y in [ya, yb]``, where ``y`` is the distance
@@ -208,14 +224,7 @@ def _clip_t(ya: float, yb: float, ea: float, ky: float) -> float:
         if ya >= 0.36 * yb:
             return _gl(_G8_X, _G8_W, math.sqrt(ya), math.sqrt(yb), ky) * scale
         return _gl(_G12_X, _G12_W, math.sqrt(ya), math.sqrt(yb), ky) * scale
-    # Longest sub-piece (in y) with xi >= _CLIP_XI: for a sub-piece of length L whose mid is
-    # at t, xi = 4 t (sqrt 2 - t) / L, concave in t, so the worst sub-pieces are the one at
-    # the edge (t >= sqrt(L)/2, xi >= 2 sqrt(2/L) - 1) and the one at the far end (t <= tb).
-    tb = math.sqrt(yb)
-    ymax = 8.0 / (_CLIP_XI + 1.0) ** 2
-    if tb > 0.5 * _SQRT2:
-        ymax = min(ymax, 4.0 * tb * (_SQRT2 - tb) / _CLIP_XI)
-    nsub = max(math.ceil(de / _CLIP_DE), math.ceil(dy / ymax), 1)
+    nsub = n_subpieces(ya, yb, de)
     step = dy / nsub
     total = 0.0
     t1 = math.sqrt(ya)
@@ -715,8 +724,9 @@ class ExactModel(ProfileModel):
         sin_xi: np.ndarray,
         out: np.ndarray,
     ) -> None:
-        if not instrument.is_ideal:
-            # The instrument as built: offsets, tilts, slat patterns, outlines.
+        if not instrument.is_ideal or not geom.at_infinity:
+            # The instrument as built: offsets, tilts, slat patterns, outlines, sources at a
+            # finite distance.
             from rotmod.profiles._asbuilt import evaluate
 
             evaluate(instrument, geom, cos_xi, sin_xi, out)

@@ -43,6 +43,10 @@ The instrument as built (all optional; docs/conventions.md, "The instrument as b
     name = "NaI"
     density = "3.67 g/cm3"
 
+A file may start from a preset or another file with ``extends = "prototype"`` and give only
+what differs (tables merge key by key): the presets stay the one description of each named
+instrument.
+
 The tables are the :class:`~rotmod.geometry.Mask`, :class:`~rotmod.materials.Material` and
 :class:`~rotmod.geometry.Instrument` dataclasses written with units: their fields (and the unit
 of each, from the field's ``metadata``) are the file's keys.  Reading converts the strings to
@@ -329,10 +333,12 @@ def _material(d: Any, section: str = "material", default: str = "lead") -> Any:
         raise ConfigError(f"{section}.name: is required (e.g. 'NaI'), but it is missing")
     try:
         return Material(d.get("name", default), **q)
-    except MaterialError as exc:
+    except RotmodError as exc:
         msg = str(exc)
         if msg.startswith("material."):
-            raise _model_error(MaterialError(section + msg[len("material"):])) from exc
+            raise _model_error(type(exc)(section + msg[len("material"):])) from exc
+        if not isinstance(exc, MaterialError):
+            raise
         raise ConfigError(f"{section}.name: {exc}") from exc
 
 
@@ -446,7 +452,7 @@ class InstrumentConfig:
 
     KEYS = (
         "name", "description", "rotation_period", "energies", "mask", "material", "detectors",
-        "detector_material",
+        "detector_material", "extends",
     )
 
     # ---------------------------------------------------------------- reading
@@ -463,6 +469,7 @@ class InstrumentConfig:
         from rotmod.geometry import Instrument
 
         _check_keys(d, cls.KEYS, "")
+        d = _extend(d)
         for sec in ("mask", "detectors"):
             if sec not in d:
                 raise ConfigError(f"{sec}: the [{sec}] table is required, but it is missing")
@@ -524,25 +531,7 @@ class InstrumentConfig:
             with the file name).
         """
         p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(
-                f"instrument file {str(p)!r}: cannot be read ({exc.strerror})"
-            ) from exc
-        except UnicodeDecodeError as exc:
-            raise ConfigError(
-                f"instrument file {str(p)!r}: is not a text file (TOML or YAML expected)"
-            ) from exc
-        try:
-            if p.suffix.lower() in (".yaml", ".yml"):
-                yaml = optional_import("yaml", "yaml", "YAML instrument files")
-                data = yaml.safe_load(text) or {}
-            else:
-                data = tomllib.loads(text)
-        except Exception as exc:
-            raise ConfigError(f"instrument file {str(p)!r}: not valid {p.suffix[1:] or 'TOML'} "
-                              f"({exc})") from exc
+        data = _parse(p)
         try:
             return cls.from_dict(data)
         except ConfigError as exc:
@@ -622,6 +611,59 @@ class InstrumentConfig:
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def _extend(d: dict[str, Any], depth: int = 0) -> dict[str, Any]:
+    """Resolve ``extends = "<preset or file>"``: the base's content, with every key this file
+    gives replacing the base's (tables key by key; a new ``[detectors]`` layout replaces the
+    base's layout keys)."""
+    if "extends" not in d:
+        return d
+    src = d["extends"]
+    if not isinstance(src, str):
+        raise ConfigError(f"extends: must be a preset name or a file path, got {src!r}")
+    if depth > 8:
+        raise ConfigError(f"extends: more than 8 levels of 'extends' (at {src!r})")
+    p = Path(src)
+    path = p if p.is_file() else preset_path(src) if os.sep not in src and not p.suffix else p
+    if not path.is_file():
+        raise ConfigError(f"extends: {src!r} is neither a preset nor an existing file")
+    base = _extend(_parse(path), depth + 1)
+    out = {k: v for k, v in base.items() if k not in ("name", "description")}
+    for k, v in d.items():
+        if k == "extends":
+            continue
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            merged = dict(out[k])
+            if k == "detectors" and "layout" in v:
+                merged = {}  # a new layout brings its own keys
+            merged.update(v)
+            out[k] = merged
+        else:
+            out[k] = v
+    return out
+
+
+def _parse(path: Path) -> dict[str, Any]:
+    """The raw content of a TOML (or ``.yaml``/``.yml``) file."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(
+            f"instrument file {str(path)!r}: cannot be read ({exc.strerror})"
+        ) from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"instrument file {str(path)!r}: is not a text file (TOML or YAML expected)"
+        ) from exc
+    try:
+        if path.suffix.lower() in (".yaml", ".yml"):
+            yaml = optional_import("yaml", "yaml", "YAML instrument files")
+            return yaml.safe_load(text) or {}
+        return tomllib.loads(text)
+    except Exception as exc:
+        raise ConfigError(f"instrument file {str(path)!r}: not valid "
+                          f"{path.suffix[1:] or 'TOML'} ({exc})") from exc
 
 
 # --------------------------------------------------------------------------- presets / loading

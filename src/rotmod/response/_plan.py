@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from rotmod._validate import as_float_dtype, as_scalar
+from rotmod._validate import as_distance, as_float_dtype, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
@@ -57,6 +57,23 @@ class ResponsePlan:
     energy: float | None
     dtype: np.dtype
     geom: ProjectedGeometry
+    distance: float | None = None
+
+    @property
+    def p_max(self) -> float:
+        """Largest value a profile can take: 1, or for thick detectors the effective-area
+        ratio of a black cylinder, ``1 + 2 H s / (pi R)``, ``s`` the steepest ray's
+        horizontal-to-vertical slope (+1 %: a bound, used to refuse damaged stores)."""
+        det = self.instrument.detectors
+        if det.is_flat:
+            return 1.0
+        slope = float(np.max(np.tan(self.geom.theta), initial=0.0))
+        if self.distance is not None:
+            reach = np.hypot(*det.positions.T).max() + det.radius
+            slope = max(slope, (self.distance * float(np.max(np.sin(self.geom.theta),
+                                                               initial=0.0)) + reach)
+                        / (self.distance * float(np.min(np.cos(self.geom.theta)))))
+        return 1.0 + 1.01 * 2.0 * det.thickness * slope / (np.pi * det.radius)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -138,10 +155,13 @@ def make_plan(
     *,
     dtype: Any = np.float32,
     detectors: Any = None,
+    distance: Any = None,
 ) -> ResponsePlan:
     """Validate the inputs of a response and project every sky pixel once.
 
-    Parameters are those of :func:`rotmod.response.build_response`.
+    Parameters are those of :func:`rotmod.response.build_response`; ``distance`` (cm, one
+    value) puts every pixel's source at that distance from the origin (a lab field),
+    ``None`` at infinity.
 
     Raises
     ------
@@ -162,10 +182,14 @@ def make_plan(
     check_memory(8.0 * grid.size * (2 * len(inst.detectors) + 6),
                  f"projecting {grid.size} sky pixels for {len(inst.detectors)} detectors",
                  hint="use larger pixels or a smaller field")
+    dist = None
+    if distance is not None:
+        d = as_distance(distance, 1)
+        dist = None if np.isinf(d[0]) else float(d[0])
     theta, phi = grid.directions()
-    geom = project(inst, theta, phi, e)
+    geom = project(inst, theta, phi, e, dist)
     mdl.validate(inst, geom)
-    return ResponsePlan(mdl, inst, grid, tb, e, dt, geom)
+    return ResponsePlan(mdl, inst, grid, tb, e, dt, geom, dist)
 
 
 def _kev() -> Any:

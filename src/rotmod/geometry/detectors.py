@@ -13,7 +13,32 @@ from rotmod.errors import ParameterError
 from rotmod.limits import check_memory
 from rotmod.materials import Material
 
-__all__ = ["DetectorArray"]
+__all__ = ["DetectorArray", "disc_flux"]
+
+
+def disc_flux(source: Any, centre: Any, radius: float) -> float:
+    """``∫ z_s / |S - q|^3 d^2q`` over a disc in the plane z = 0: the solid angle (sr) the disc
+    subtends from the point ``source`` (cm, above the plane).
+
+    Polar Gauss–Legendre in the radius (64 nodes) and the trapezoid rule in the angle (256
+    nodes; exponentially accurate for the periodic, analytic integrand): relative error
+    below 1e-13 for ``z_s > radius / 4`` (checked against the on-axis closed form
+    ``2 pi (1 - z / sqrt(z^2 + r^2))`` in tests/test_asbuilt.py).
+    """
+    S = np.asarray(source, dtype=float)
+    cx, cy = (float(v) for v in np.asarray(centre, dtype=float)[:2])
+    rho = 0.5 * radius * (_GL64_X + 1.0)
+    wr = 0.5 * radius * _GL64_W * rho
+    qx = cx + rho[:, None] * _COS256[None, :]
+    qy = cy + rho[:, None] * _SIN256[None, :]
+    d2 = (S[0] - qx) ** 2 + (S[1] - qy) ** 2 + S[2] ** 2
+    f = S[2] / (d2 * np.sqrt(d2))
+    return float(np.sum(wr[:, None] * f) * (2 * np.pi / _COS256.size))
+
+
+_GL64_X, _GL64_W = np.polynomial.legendre.leggauss(64)
+_COS256 = np.cos(np.linspace(0.0, 2 * np.pi, 256, endpoint=False))
+_SIN256 = np.sin(np.linspace(0.0, 2 * np.pi, 256, endpoint=False))
 
 
 @dataclass(frozen=True, eq=False)

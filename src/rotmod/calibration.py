@@ -41,6 +41,7 @@ __all__ = [
     "CalibrationResult",
     "LabMeasurement",
     "fit_calibration",
+    "relative_flux",
     "simulate_measurement",
 ]
 
@@ -171,9 +172,23 @@ def _with(instrument: Instrument, p: dict[str, float]) -> tuple[Instrument, floa
         p.get("distance_offset", 0.0)
 
 
-def _relative_flux(instrument: Instrument, theta: float, phi: float, distance: float
-                   ) -> np.ndarray:
-    """``omega_d``: each face's solid angle over that of a face at the array's centre."""
+def relative_flux(instrument: Instrument, theta: float, phi: float, distance: float
+                  ) -> np.ndarray:
+    """``omega_d``: each detector face's solid angle seen from the source over that of a face
+    at the array's centre (1 for a source at infinity).
+
+    Parameters
+    ----------
+    instrument : Instrument
+    theta, phi : float
+        Source direction (rad).
+    distance : float
+        Source distance (cm), ``inf`` at infinity.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_det,)
+    """
     det = instrument.detectors
     if not np.isfinite(distance):
         return np.ones(len(det))
@@ -194,7 +209,7 @@ def _profiles(instrument: Instrument, m: LabMeasurement, distance_offset: float,
     P = get_model(model).profile(instrument, u.Quantity([m.theta]), u.Quantity([m.phi]),
                                  xi * u.rad, m.energy, distance=D)[:, :, 0]
     Pbar = P.reshape(P.shape[0], tb.n_sub, tb.n_bins).mean(axis=1)
-    return Pbar * _relative_flux(instrument, m.theta.to_value(u.rad), m.phi.to_value(u.rad),
+    return Pbar * relative_flux(instrument, m.theta.to_value(u.rad), m.phi.to_value(u.rad),
                                  m.distance + distance_offset)[:, None]
 
 
@@ -245,7 +260,7 @@ def simulate_measurement(
     m0 = LabMeasurement(theta, phi, distance, energy, np.zeros((len(det), tb.n_bins)), tb)
     D = m0.distance if np.isfinite(m0.distance) else None
     src = (u.Quantity([m0.theta]), u.Quantity([m0.phi]))
-    omega = _relative_flux(instrument, m0.theta.to_value(u.rad), m0.phi.to_value(u.rad),
+    omega = relative_flux(instrument, m0.theta.to_value(u.rad), m0.phi.to_value(u.rad),
                            m0.distance)
     # The Monte Carlo draws photons on each face (or on a disc around a thick detector's
     # shadow: ``scale`` face photons per drawn photon), so each detector draws

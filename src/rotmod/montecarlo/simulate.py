@@ -103,11 +103,11 @@ class MCProfiles:
         Photon energy (keV) used for the attenuation.
     instrument : Instrument
     scale : float or ndarray, shape (n_det, 1, n_src)
-        Photons that would cross one unobstructed detector face per simulated photon.  1
-        when photons are drawn on the face (flat detectors); for thick detectors they are
-        drawn on a larger disc holding the detector's shadow, and ``scale`` is the ratio of
-        the flux through the face to that through the disc.  ``P = counts / n_photons *
-        scale`` (compare a model with ``counts`` through ``P / scale``).
+        Simulated photons per photon crossing one unobstructed detector face: 1 when
+        photons are drawn on the face (flat detectors); for thick detectors they are drawn
+        on a larger disc holding the detector's shadow, and ``scale`` (>= 1) is the ratio of
+        the flux through that disc to the flux through the face.  ``P = counts / n_photons
+        * scale`` (compare a model with ``counts`` through ``P / scale``).
     distance : ndarray, shape (n_src,)
         Source distances (cm; ``inf``: at infinity).
     poisson : bool

@@ -16,19 +16,24 @@ unchanged.  Everything else comes here, by the same 1-D reduction:
   ``R |g|`` in ``u_b``; ``s = h d_u / d_z`` and ``tau = mu h / d_z`` are the same for every
   ray.  The profile is the ideal kernel's with ``(u_b(c), s, R |g|, tau)`` -- exact, for any
   offset and tilt.
-* **A source at a finite distance** (position ``S``): the ray from detector point
-  ``c + delta`` to ``S`` crosses the plane ``z' = zeta`` at a projective function of
-  ``delta``, linearised at the detector's centre (exact without tilt; the remainder is
-  ``O(tilt R^2 / D)``, < 1e-4 cm for the prototype).  With ``x`` along the gradient ``g_b``
-  of the bottom crossing, ``u_b = u_b0 + |g_b| x`` and ``u_t = u_t0 + g_t x``: the disc maps
-  to a scaled disc, the growth ``s = u_t - u_b`` is linear in ``x``, and the path fraction
-  in slats is a ratio of linear functions between the breakpoints ``u_b = e`` and
-  ``u_t = e``.  The slab path ``h |S - q| / (S'_z - q'_z)`` and the flux weight
-  ``z_s / |S - q|^3`` (``cos(incidence) / r^2``) vary smoothly across the disc: each chord is
-  averaged by 2-point Gauss–Legendre (exact to third order in ``y / D``), and ``x`` is
+* **A source at a finite distance** (position ``S``): the ray from detector point ``c +
+  delta`` to ``S`` crosses the plane ``z' = zeta`` at a projective function of ``delta``,
+  linearised at the detector's centre (exact without tilt; the remainder over the face is
+  2.8e-5 cm for the prototype at 0.2 deg and 2 m, 4e-4 cm at 3 deg).  With ``x`` along the
+  gradient ``g_b`` of the bottom crossing, ``u_b = u_b0 + |g_b| x`` and ``u_t = u_t0 + g_t
+  x``: the disc maps to a scaled disc, the growth ``s = u_t - u_b`` is linear in ``x``, and
+  the path fraction in slats is a ratio of linear functions between the breakpoints ``u_b =
+  e`` and ``u_t = e``.  The slab path ``h |S - q| / (S'_z - q'_z)`` and the flux weight
+  ``z_s / |S - q|^3`` (``cos(incidence) / r^2``) vary smoothly across the disc: each chord
+  is averaged by 2-point Gauss–Legendre (exact to third order in ``y / D``), and ``x`` is
   integrated on the pieces between breakpoints by Gauss–Legendre in ``t = sqrt`` (distance
-  from the disc's edge), sub-pieces as in the ideal kernel's clip integrals.  The profile
-  is ``1 - ∫ w (1 - T) / ∫ w`` over the face.
+  from the disc's edge), sub-pieces as in the ideal kernel's clip integrals.  The profile is
+  ``1 - ∫ w (1 - T) / ∫ w`` over the face.
+* **Thick detectors**: rays are labelled by where they cross the top face's plane; each
+  counts with ``ε = 1 - exp(-mu_det l)``, ``l`` its path in the cylinder, and
+  ``P = (∫∫ w ε - ∫∫ w ε (1 - T)) / ∫∫_face w`` over the detector's shadow; the
+  mask-independent chord integrals are interpolated per cell (:func:`_thick_cells`), the
+  mask's factor integrated against them (:func:`_thick_lost`).
 * **Slat patterns** given as edge lists take :func:`~rotmod.profiles.exact.point_edges`.
 * **A finite outline** (disc or square centred on the axis, turning with the mask): rays
   that cross the slab outside it are not attenuated.  The model handles the detectors

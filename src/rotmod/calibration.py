@@ -65,10 +65,16 @@ PARAMETERS: dict[str, tuple[str, float]] = {
 
 
 def bins(n_bins: int) -> TimeBinning:
-    """``n_bins`` bins per rotation, each averaged over midpoint sub-angles at most 2 deg
-    apart (and at least 4)."""
+    """``n_bins`` bins per rotation, each averaged over midpoint sub-angles at most 1 deg
+    apart (and at least 4).
+
+    Opaque slats (lead at 122 keV) give profiles with kinks, where the midpoint rule
+    converges slowly: for the lab prototype at 2 m and 2e4 counts per bin the deviance/dof
+    at the truth is 1.31 with 1.9 deg sub-intervals, 1.11 with 0.94 deg and 1.094 with
+    0.12 deg (docs/physics.md).
+    """
     n = as_int(n_bins, "time_bins", 1)
-    return TimeBinning(n, "average", max(4, math.ceil(180.0 / n)))
+    return TimeBinning(n, "average", max(4, math.ceil(360.0 / n)))
 
 
 @dataclass(frozen=True)
@@ -88,9 +94,8 @@ class LabMeasurement:
         Counts per detector and mask-angle bin (integers >= 0).
     time_bins : TimeBinning or int
         The binning of one rotation; the model averages each bin over its ``n_sub``
-        midpoint sub-angles.  An int is that many bins with sub-angles of at most 2 deg
-        (:func:`bins`): coarser ones misfit bright sources (24 bins of 4 sub-angles, 3.75
-        deg: deviance/dof 1.12 at 2e4 counts per bin; 8 sub-angles: 0.99).
+        midpoint sub-angles.  An int is that many bins with sub-angles at most 1 deg apart
+        (:func:`bins`): coarser ones misfit bright sources.
     background : float or array_like, shape (n_det,) or (n_det, n_bins)
         Known background counts per bin (>= 0), e.g. from a run without the source.
     """

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import astropy.units as u
@@ -10,7 +11,7 @@ import pytest
 
 from rotmod import DetectorArray, Instrument, Mask
 from rotmod.config import load_instrument
-from rotmod.errors import ParameterError
+from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.limits import MemoryBudgetError
 from rotmod.profiles import get_model
 from rotmod.reconstruction import reconstruct
@@ -203,6 +204,10 @@ def test_bad_input_is_refused_with_the_rule() -> None:
     # A field reaching 89 deg at a tight tolerance needs a table of ~10^11 values.
     with pytest.raises(MemoryBudgetError, match="table of"):
         RadonResponse(inst, SkyGrid((3, 3), 89.0), tb, energy, tolerance=1e-6)
+    # A tilted mask axis makes the table depend on the angle: refused, not approximated.
+    tilted = Instrument(dataclasses.replace(inst.mask, tilt_x=0.2 * u.deg), inst.detectors)
+    with pytest.raises(ModelValidityError, match=r"instrument: .*as built \(.*tilt"):
+        RadonResponse(tilted, grid, tb, energy)
 
 
 def test_stored_radon_response_is_its_table_and_reopens_as_the_same_operator(tmp_path) -> None:

@@ -15,7 +15,10 @@ import numpy as np
 
 from rotmod.errors import ParameterError
 
-__all__ = ["as_angle", "as_angle_scalar", "as_array", "as_float_dtype", "as_int", "as_scalar"]
+__all__ = [
+    "as_angle", "as_angle_scalar", "as_array", "as_distance", "as_float_dtype", "as_int",
+    "as_scalar",
+]
 
 
 def _strip(value: Any, unit: u.UnitBase | None, name: str) -> np.ndarray:
@@ -159,3 +162,29 @@ def as_angle(value: Any, name: str, **bounds: Any) -> np.ndarray:
 def as_angle_scalar(value: Any, name: str, **bounds: Any) -> float:
     """Scalar form of :func:`as_angle`; returns a Python float in radians."""
     return float(np.deg2rad(as_scalar(value, name, u.deg, **bounds)))
+
+
+def as_distance(value: Any, n: int, name: str = "distance") -> np.ndarray:
+    """Source distances (cm; Quantities accepted), one per source or one for all: ``None``
+    and ``inf`` mean a source at infinity.  Returns a float array of shape ``(n,)``.
+
+    Raises
+    ------
+    ParameterError
+        Not > 0 cm, NaN, or the wrong number of values.
+    """
+    if value is None:
+        return np.full(n, np.inf)
+    arr = np.atleast_1d(_strip(value, u.cm, name))
+    if arr.ndim != 1:
+        raise ParameterError(f"{name} must be a scalar or 1-dimensional, got shape {arr.shape}")
+    if np.any(np.isnan(arr)) or np.any(arr <= 0) or np.any(np.isneginf(arr)):
+        bad = arr[np.isnan(arr) | (arr <= 0)]
+        raise ParameterError(f"{name} must be > 0 cm (inf: at infinity), got {bad[0]:g} cm")
+    if arr.size == 1:
+        return np.full(n, float(arr[0]))
+    if arr.size != n:
+        raise ParameterError(
+            f"{name} must hold one value or one per source ({n}), got {arr.size} values"
+        )
+    return arr.astype(float)

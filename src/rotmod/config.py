@@ -26,6 +26,26 @@ written as strings and parsed by `astropy.units`::
     x0 = "0 cm"
     y0 = "0 cm"
     # hexagonal: rings = 2, pitch = "3.99 cm"
+    # thickness = "2.5 cm"   # optional: cylinders of [detector_material] (default: flat faces)
+
+The instrument as built (all optional; docs/conventions.md, "The instrument as built")::
+
+    [mask]
+    axis_offset_x = "1 mm"   # where the rotation axis meets the mask's bottom face
+    axis_offset_y = "0 mm"
+    tilt_x = "0.2 deg"       # tilt of the rotation axis
+    tilt_y = "0 deg"
+    outline = "circle"       # or "square"; the mask's extent
+    outline_size = "40 cm"   # radius, or half-width of the square
+    slat_edges = ["1 cm", "3 cm", "4 cm", "7 cm"]   # a non-uniform pattern (one period)
+
+    [detector_material]      # required with detectors.thickness
+    name = "NaI"
+    density = "3.67 g/cm3"
+
+A file may start from a preset or another file with ``extends = "prototype"`` and give only
+what differs (tables merge key by key): the presets stay the one description of each named
+instrument.
 
 The tables are the :class:`~rotmod.geometry.Mask`, :class:`~rotmod.materials.Material` and
 :class:`~rotmod.geometry.Instrument` dataclasses written with units: their fields (and the unit
@@ -230,6 +250,10 @@ def _unit_fields(cls: type) -> list[tuple[str, str]]:
     return [(f.name, f.metadata["unit"]) for f in dataclasses.fields(cls) if "unit" in f.metadata]
 
 
+def _text_fields(cls: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls) if f.metadata.get("text")]
+
+
 def _model_error(exc: RotmodError) -> ConfigError:
     """A model's ParameterError (``mask.slat_width must be ...``) in the file's key style."""
     msg = re.sub(r"^instrument\.", "", str(exc))
@@ -240,47 +264,82 @@ def _read_fields(d: dict[str, Any], cls: type, section: str, *, extra: tuple[str
                  required: tuple[str, ...] = ()) -> dict[str, u.Quantity]:
     """Parse the unit-carrying fields of ``cls`` present in ``d`` (``required`` must be)."""
     fields = _unit_fields(cls)
-    _check_keys(d, tuple(n for n, _ in fields) + extra, section)
-    out = {}
+    texts = _text_fields(cls)
+    _check_keys(d, tuple(n for n, _ in fields) + tuple(texts) + extra, section)
+    meta = {f.name: f.metadata for f in dataclasses.fields(cls)}
+    out: dict[str, Any] = {}
+    for name in texts:
+        if name in d:
+            key = f"{section}.{name}" if section else name
+            if not isinstance(d[name], str):
+                raise ConfigError(f"{key}: must be a string, got {d[name]!r}")
+            out[name] = d[name]
     for name, unit in fields:
         key = f"{section}.{name}" if section else name
         if name not in d:
             if name in required:
                 raise ConfigError(f"{key}: is required (e.g. '1 {unit}'), but it is missing")
             continue
-        out[name] = parse_quantity(d[name], key, unit, _WHAT.get(unit, f"a value in {unit}"),
-                                   allow_inf=name == "mu")
+        what = _WHAT.get(unit, f"a value in {unit}")
+        if meta[name].get("list"):
+            v = d[name]
+            if not isinstance(v, list) or not v:
+                raise ConfigError(
+                    f"{key}: must be a non-empty list like ['1 {unit}', '2 {unit}'], got {v!r}"
+                )
+            out[name] = u.Quantity([parse_quantity(x, f"{key}[{i}]", unit, what)
+                                    for i, x in enumerate(v)])
+            continue
+        out[name] = parse_quantity(d[name], key, unit, what, allow_inf=name == "mu")
     return out
 
 
 def _write_fields(obj: Any, *, skip_none: bool = True) -> dict[str, Any]:
-    out = {}
+    out: dict[str, Any] = {}
+    meta = {f.name: f for f in dataclasses.fields(type(obj))}
+    for name in _text_fields(type(obj)):
+        if getattr(obj, name) is not None:
+            out[name] = getattr(obj, name)
     for name, unit in _unit_fields(type(obj)):
         v = getattr(obj, name)
         if v is None and skip_none:
             continue
-        out[name] = _fmt_q(float(v) * u.Unit(unit))
+        f = meta[name]
+        if f.metadata.get("skip_default") and np.all(u.Quantity(v).value == f.default):
+            continue  # an ideal-instrument value: the file stays as it was
+        if f.metadata.get("list"):
+            out[name] = [_fmt_q(float(x) * u.Unit(unit)) for x in v]
+            continue
+        # Plain numbers are in the field's unit; Quantities (angles, held in rad) convert.
+        q = v.to(unit) if isinstance(v, u.Quantity) else float(v) * u.Unit(unit)
+        out[name] = _fmt_q(q)
     return out
 
 
 _WHAT = {
     "cm": "a length", "s": "a time", "keV": "an energy", "1/cm": "a linear attenuation "
     "coefficient", "g/cm3": "a density", "cm2/g": "a mass attenuation coefficient",
+    "deg": "an angle",
 }
 
 
-def _material(d: Any) -> Any:
+def _material(d: Any, section: str = "material", default: str = "lead") -> Any:
     from rotmod.errors import MaterialError
     from rotmod.materials import Material
 
-    _check_keys(d, ("name", *(n for n, _ in _unit_fields(Material))), "material")
-    q = _read_fields({k: v for k, v in d.items() if k != "name"}, Material, "material")
+    _check_keys(d, ("name", *(n for n, _ in _unit_fields(Material))), section)
+    q = _read_fields({k: v for k, v in d.items() if k != "name"}, Material, section)
+    if "name" not in d and default is None:
+        raise ConfigError(f"{section}.name: is required (e.g. 'NaI'), but it is missing")
     try:
-        return Material(d.get("name", "lead"), **q)
-    except MaterialError as exc:
-        if str(exc).startswith("material."):
+        return Material(d.get("name", default), **q)
+    except RotmodError as exc:
+        msg = str(exc)
+        if msg.startswith("material."):
+            raise _model_error(type(exc)(section + msg[len("material"):])) from exc
+        if not isinstance(exc, MaterialError):
             raise
-        raise ConfigError(f"material.name: {exc}") from exc
+        raise ConfigError(f"{section}.name: {exc}") from exc
 
 
 def _mask(d: Any, material: Any) -> Any:
@@ -290,7 +349,20 @@ def _mask(d: Any, material: Any) -> Any:
     return Mask(material=material, **q)
 
 
-def _detectors(d: Any) -> Any:
+def _detectors(d: Any, material: Any = None) -> Any:
+    arr = _detector_layout(d)
+    if "thickness" not in d:
+        if material is not None:
+            raise ConfigError(
+                "detector_material: the [detector_material] table needs detectors.thickness "
+                "(flat faces count every photon)"
+            )
+        return arr
+    H = _quantity(d, "thickness", "detectors", "cm", "a length", strict=False)
+    return arr.__class__(arr.positions, arr.diameter, H, material)
+
+
+def _detector_layout(d: Any) -> Any:
     from rotmod.geometry import DetectorArray
 
     section = "detectors"
@@ -302,7 +374,7 @@ def _detectors(d: Any) -> Any:
         raise ConfigError(
             f"{section}.layout: must be one of {', '.join(_LAYOUTS)}, got {layout!r}{hint}"
         )
-    allowed = _PER_LAYOUT[layout]
+    allowed = (*_PER_LAYOUT[layout], "thickness")
     extra = [k for k in d if k not in allowed]
     if extra:
         raise ConfigError(
@@ -351,7 +423,8 @@ def _detectors(d: Any) -> Any:
     return DetectorArray.hexagonal(c, rings=rings, pitch=length("pitch"))
 
 
-_DETECTOR_KEYS = ("layout", "diameter", "x0", "y0", "positions", "rings", "pitch")
+_DETECTOR_KEYS = ("layout", "diameter", "x0", "y0", "positions", "rings", "pitch",
+                  "thickness")
 
 
 @dataclass(frozen=True, eq=False)
@@ -379,6 +452,7 @@ class InstrumentConfig:
 
     KEYS = (
         "name", "description", "rotation_period", "energies", "mask", "material", "detectors",
+        "detector_material", "extends",
     )
 
     # ---------------------------------------------------------------- reading
@@ -395,6 +469,7 @@ class InstrumentConfig:
         from rotmod.geometry import Instrument
 
         _check_keys(d, cls.KEYS, "")
+        d = _extend(d)
         for sec in ("mask", "detectors"):
             if sec not in d:
                 raise ConfigError(f"{sec}: the [{sec}] table is required, but it is missing")
@@ -416,9 +491,11 @@ class InstrumentConfig:
             energies.append(q)
         top = {k: d[k] for k in ("rotation_period",) if k in d}
         try:
+            det_mat = (_material(d["detector_material"], "detector_material", None)
+                       if "detector_material" in d else None)
             inst = Instrument(
-                _mask(d["mask"], _material(d.get("material", {}))), _detectors(d["detectors"]),
-                **_read_fields(top, Instrument, ""),
+                _mask(d["mask"], _material(d.get("material", {}))),
+                _detectors(d["detectors"], det_mat), **_read_fields(top, Instrument, ""),
             )
         except ConfigError:
             raise
@@ -454,25 +531,7 @@ class InstrumentConfig:
             with the file name).
         """
         p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(
-                f"instrument file {str(p)!r}: cannot be read ({exc.strerror})"
-            ) from exc
-        except UnicodeDecodeError as exc:
-            raise ConfigError(
-                f"instrument file {str(p)!r}: is not a text file (TOML or YAML expected)"
-            ) from exc
-        try:
-            if p.suffix.lower() in (".yaml", ".yml"):
-                yaml = optional_import("yaml", "yaml", "YAML instrument files")
-                data = yaml.safe_load(text) or {}
-            else:
-                data = tomllib.loads(text)
-        except Exception as exc:
-            raise ConfigError(f"instrument file {str(p)!r}: not valid {p.suffix[1:] or 'TOML'} "
-                              f"({exc})") from exc
+        data = _parse(p)
         try:
             return cls.from_dict(data)
         except ConfigError as exc:
@@ -502,6 +561,10 @@ class InstrumentConfig:
                 "layout": "list", "diameter": _fmt_q(det.diameter * u.cm),
                 "positions": [[_fmt_q(x * u.cm), _fmt_q(y * u.cm)] for x, y in det.positions],
             }
+        if not det.is_flat:
+            out["detectors"]["thickness"] = _fmt_q(det.thickness * u.cm)
+            out["detector_material"] = {"name": det.material.name,
+                                        **_write_fields(det.material)}
         return out
 
     def to_toml(self) -> str:
@@ -548,6 +611,59 @@ class InstrumentConfig:
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def _extend(d: dict[str, Any], depth: int = 0) -> dict[str, Any]:
+    """Resolve ``extends = "<preset or file>"``: the base's content, with every key this file
+    gives replacing the base's (tables key by key; a new ``[detectors]`` layout replaces the
+    base's layout keys)."""
+    if "extends" not in d:
+        return d
+    src = d["extends"]
+    if not isinstance(src, str):
+        raise ConfigError(f"extends: must be a preset name or a file path, got {src!r}")
+    if depth > 8:
+        raise ConfigError(f"extends: more than 8 levels of 'extends' (at {src!r})")
+    p = Path(src)
+    path = p if p.is_file() else preset_path(src) if os.sep not in src and not p.suffix else p
+    if not path.is_file():
+        raise ConfigError(f"extends: {src!r} is neither a preset nor an existing file")
+    base = _extend(_parse(path), depth + 1)
+    out = {k: v for k, v in base.items() if k not in ("name", "description")}
+    for k, v in d.items():
+        if k == "extends":
+            continue
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            merged = dict(out[k])
+            if k == "detectors" and "layout" in v:
+                merged = {}  # a new layout brings its own keys
+            merged.update(v)
+            out[k] = merged
+        else:
+            out[k] = v
+    return out
+
+
+def _parse(path: Path) -> dict[str, Any]:
+    """The raw content of a TOML (or ``.yaml``/``.yml``) file."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(
+            f"instrument file {str(path)!r}: cannot be read ({exc.strerror})"
+        ) from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"instrument file {str(path)!r}: is not a text file (TOML or YAML expected)"
+        ) from exc
+    try:
+        if path.suffix.lower() in (".yaml", ".yml"):
+            yaml = optional_import("yaml", "yaml", "YAML instrument files")
+            return yaml.safe_load(text) or {}
+        return tomllib.loads(text)
+    except Exception as exc:
+        raise ConfigError(f"instrument file {str(path)!r}: not valid "
+                          f"{path.suffix[1:] or 'TOML'} ({exc})") from exc
 
 
 # --------------------------------------------------------------------------- presets / loading

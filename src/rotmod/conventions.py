@@ -33,12 +33,22 @@ Sources and photons
   same point plus ``h tan theta (cos phi, sin phi)``.  Its mask-frame coordinate therefore
   grows by ``s = h tan(theta) cos(xi + phi)`` from the bottom to the top face.
 
+The instrument as built
+-----------------------
+(docs/conventions.md, "The instrument as built".)  A tilted, offset axis: the mask frame is
+``Q (q - c_m)`` (:meth:`rotmod.geometry.Mask.frame`), ``c_m`` where the axis crosses the mask's
+bottom face, ``Q`` undoing the smallest rotation from ``z`` to the axis; the rules above hold
+in that frame.  A source at a finite distance ``D`` sits at ``D`` times its direction from the
+origin.  A thick detector is the cylinder ``-H <= z <= 0`` below its face.
+
 Profiles
 --------
 A profile value is the fraction of the photons that would reach a detector face with no
 mask that reach it unattenuated (0 to 1; photopeak only, no scattering).  Count rates are
-that fraction times the unobstructed rate.  Profile arrays are laid out ``[detector, angle,
-source]`` everywhere (the response's ``P[d, t, n]``).
+that fraction times the unobstructed rate.  With thick detectors it is the number of counts
+per photon that would cross the face (the detection efficiency and side entry included, so
+it may exceed 1); the sky unit stays the rate on one unobstructed face.  Profile arrays are
+laid out ``[detector, angle, source]`` everywhere (the response's ``P[d, t, n]``).
 """
 
 from __future__ import annotations

@@ -203,8 +203,8 @@ def scan_designs(
     *,
     detector_diameter: Any,
     height: Any,
-    slat_width: Any,
-    slat_gap: Any,
+    slat_width: Any = None,
+    slat_gap: Any = None,
     thickness: Any,
     material: Any = "lead",
     energies: Any = (662.0,),
@@ -214,6 +214,7 @@ def scan_designs(
     n_phi: int = 4,
     n_angles: int = 64,
     progress: Any = None,
+    patterns: Any = None,
 ) -> DesignScan:
     """Scan mask designs and compute their figures of merit with the exact model.
 
@@ -239,6 +240,12 @@ def scan_designs(
         Mask angles over half a turn.
     progress : callable, optional
         Called as ``progress(done, total)`` after each design.
+    patterns : sequence of (edges, period), optional
+        Slat patterns beyond equal slats, instead of ``slat_width`` x ``slat_gap``: each is
+        the slat edges of one period (cm, ``Mask.slat_edges``) and the period (cm); every
+        pattern is scanned at every ``thickness``.  A design's ``slat_width`` is then its
+        slat material per period and ``slat_gap`` the rest; asymmetric patterns are
+        evaluated over a whole turn (``settings["patterns"]`` keeps the edges).
 
     Returns
     -------
@@ -247,7 +254,8 @@ def scan_designs(
     Raises
     ------
     ParameterError
-        Bad sizes, an empty scan or a field of view >= 180 deg.
+        Bad sizes, an empty scan, a field of view >= 180 deg, or neither (or both) of
+        ``slat_width``/``slat_gap`` and ``patterns``.
     """
     from rotmod.geometry import DetectorArray, Instrument, Mask
     from rotmod.materials import Material
@@ -256,9 +264,26 @@ def scan_designs(
     t0 = time.perf_counter()
     c = as_scalar(detector_diameter, "detector_diameter", u.cm, lo=0.0, lo_open=True)
     L = as_scalar(height, "height", u.cm, lo=0.0, lo_open=True)
-    A = _grid(slat_width, "slat_width")
-    B = _grid(slat_gap, "slat_gap")
+    if (patterns is None) == (slat_width is None or slat_gap is None) or (
+            patterns is not None and (slat_width is not None or slat_gap is not None)):
+        raise ParameterError(
+            "give slat_width and slat_gap (equal slats), or patterns (edges and period), "
+            "not both"
+        )
     H = _grid(thickness, "thickness", lo_open=False)
+    if patterns is None:
+        A = _grid(slat_width, "slat_width")
+        B = _grid(slat_gap, "slat_gap")
+        shapes = [(a, b, None) for a, b in itertools.product(A, B)]
+    else:
+        shapes = []
+        for i, pat in enumerate(patterns):
+            if not isinstance(pat, tuple | list) or len(pat) != 2:
+                raise ParameterError(f"patterns[{i}] must be (edges, period), got {pat!r}")
+            e = as_array(pat[0], f"patterns[{i}] edges", u.cm, ndim=1)
+            period = as_scalar(pat[1], f"patterns[{i}] period", u.cm, lo=0.0, lo_open=True)
+            a = float(np.sum(e[1::2] - e[0::2]))
+            shapes.append((a, period - a, tuple(e.tolist())))
     E = as_array(energies, "energies", u.keV, lo=0.0, lo_open=True, ndim=1)
     f = as_scalar(fov, "fov", u.deg, lo=0.0, hi=180.0, hi_open=True)
     for name, val in (("n_theta", n_theta), ("n_phi", n_phi), ("n_angles", n_angles)):
@@ -275,25 +300,27 @@ def scan_designs(
     half = np.radians(f / 2)
     k = (np.arange(n_theta) + 0.5) / n_theta
     theta_r = np.arctan(np.tan(half) * np.sqrt(k)) if f > 0 else np.zeros(n_theta)
-    # Azimuths over half a turn suffice: with the gap centred on the axis, (theta, phi) and
-    # (theta, phi + pi) give the same profile on an on-axis detector.
-    phi_r = (np.arange(n_phi) + 0.5) * (np.pi / n_phi)
-    th, ph = (a.ravel() * u.rad for a in np.meshgrid(theta_r, phi_r, indexing="ij"))
     theta_max = float(np.arctan(np.tan(half))) if f > 0 else 0.0
-    xi = (np.arange(n_angles) + 0.5) * (np.pi / n_angles) * u.rad
     det = DetectorArray.single(c)
     exact = get_model("exact")
     advanced = get_model("advanced")
 
-    designs = list(itertools.product(A, B, H))
+    designs = [(a, b, h, e) for (a, b, e), h in itertools.product(shapes, H)]
     n = len(designs)
     out = {k_: np.empty(n) for k_ in ("a", "b", "h", "sens", "trans", "ma", "mb")}
     valid = np.zeros(n, dtype=bool)
-    for i, (a, b, h) in enumerate(designs):
+    for i, (a, b, h, e) in enumerate(designs):
         sens = trans = 0.0
-        for mu_e in mus:
-            inst = Instrument(Mask(a, b, h, L, mat, mu=mu_e), det)
-            P = exact.profile(inst, th, ph, xi)[0]  # (angle, source)
+        masks = [Mask(a, b, h, L, mat, mu=mu_e, slat_edges=e) for mu_e in mus]
+        # A half turn maps a symmetric mask onto itself: half a turn of angles suffices, and
+        # (theta, phi), (theta, phi + pi) give the same profile on an on-axis detector, so
+        # half a turn of azimuths too; an asymmetric pattern needs the whole turn.
+        turn = np.pi if masks[0].half_turn_symmetric else 2 * np.pi
+        phi_r = (np.arange(n_phi) + 0.5) * (turn / n_phi)
+        th, ph = (q.ravel() * u.rad for q in np.meshgrid(theta_r, phi_r, indexing="ij"))
+        xi = (np.arange(n_angles) + 0.5) * (turn / n_angles) * u.rad
+        for mask in masks:
+            P = exact.profile(Instrument(mask, det), th, ph, xi)[0]  # (angle, source)
             sens += float(P.std(axis=0).mean())
             trans += float(P.mean())
         out["a"][i], out["b"][i], out["h"][i] = a, b, h
@@ -303,6 +330,8 @@ def scan_designs(
         out["ma"][i], out["mb"][i] = a - smax, b - smax
         inst = Instrument(Mask(a, b, h, L, mat, mu=mus[0]), det)
         try:
+            if e is not None:
+                raise ModelValidityError("the advanced model takes equal slats only")
             advanced.check_validity(inst, project(inst, [theta_max] * u.rad, [0.0]))
             valid[i] = True
         except ModelValidityError:
@@ -322,6 +351,8 @@ def scan_designs(
         "n_angles": int(n_angles),
         "model": "exact",
     }
+    if patterns is not None:
+        settings["patterns"] = [list(e) for _, _, e in shapes]
     return DesignScan(
         out["a"], out["b"], out["h"], out["sens"], out["trans"],
         np.degrees(np.arctan(out["b"] / L)), out["ma"], out["mb"], valid, settings,

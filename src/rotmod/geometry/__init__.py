@@ -3,8 +3,8 @@
 All follow :mod:`rotmod.conventions`.
 """
 
-from rotmod.geometry.detectors import DetectorArray
+from rotmod.geometry.detectors import DetectorArray, disc_flux
 from rotmod.geometry.instrument import Instrument
 from rotmod.geometry.mask import Mask
 
-__all__ = ["DetectorArray", "Instrument", "Mask"]
+__all__ = ["DetectorArray", "Instrument", "Mask", "disc_flux"]

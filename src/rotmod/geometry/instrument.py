@@ -52,6 +52,65 @@ class Instrument:
     __hash__ = None  # type: ignore[assignment]
 
     @property
+    def is_ideal(self) -> bool:
+        """True for the paper's instrument: an ideal mask (:attr:`Mask.is_ideal`) over flat
+        detector faces.  Only such instruments take the fast kernels of every model; the
+        ``exact`` model and the Monte Carlo handle the others (docs/physics.md, "The
+        instrument as built")."""
+        return self.mask.is_ideal and self.detectors.is_flat
+
+    def as_built_features(self) -> list[str]:
+        """Names of the ways this instrument departs from the ideal one (empty if ideal)."""
+        m = self.mask
+        out = []
+        if m.slat_edges is not None:
+            out.append("mask.slat_edges")
+        if m.axis_offset_x or m.axis_offset_y:
+            out.append("mask.axis_offset")
+        if m.tilt:
+            out.append("mask.tilt")
+        if m.outline is not None:
+            out.append("mask.outline")
+        if not self.detectors.is_flat:
+            out.append("detectors.thickness")
+        return out
+
+    def source_positions(self, theta: np.ndarray, phi: np.ndarray,
+                         distance: np.ndarray) -> np.ndarray:
+        """Lab positions (cm), shape (n, 3), of sources at ``distance`` from the origin (the
+        array centre in the detector plane) in the directions ``(theta, phi)`` (rad);
+        ``inf`` rows stay ``inf`` (sources at infinity).
+
+        Raises
+        ------
+        ParameterError
+            A finite source that does not lie above the mask's top face (every ray from it
+            must cross the whole slab).
+        """
+        th = np.asarray(theta, dtype=float)
+        ph = np.asarray(phi, dtype=float)
+        D = np.broadcast_to(np.asarray(distance, dtype=float), th.shape)
+        st = np.sin(th)
+        with np.errstate(invalid="ignore"):
+            S = D[:, None] * np.stack([st * np.cos(ph), st * np.sin(ph), np.cos(th)], axis=1)
+        S[~np.isfinite(D)] = np.inf
+        fin = np.isfinite(D)
+        if fin.any():
+            Q, cm = self.mask.frame()
+            height = (S[fin] - cm) @ Q[2]
+            top = self.mask.thickness
+            bad = np.flatnonzero(height <= top)
+            if bad.size:
+                i = int(np.flatnonzero(fin)[bad[0]])
+                raise ParameterError(
+                    f"distance must put every source above the mask's top face (L + h = "
+                    f"{self.mask.height + top:g} cm on the axis), got {D[i]:g} cm for source "
+                    f"{i} at theta = {np.degrees(th[i]):g} deg (height above the mask's bottom "
+                    f"face {height[bad[0]]:g} cm)"
+                )
+        return S
+
+    @property
     def angular_speed(self) -> float:
         """``omega = 2 pi / rotation_period`` (rad/s)."""
         return 2 * np.pi / self.rotation_period
@@ -77,8 +136,7 @@ class Instrument:
         )
         mu = m.pop("mu")
         mask = Mask(material=material, mu=mu, **m)
-        det = DetectorArray(np.asarray(d["detectors"]["positions"]), d["detectors"]["diameter"])
-        return cls(mask, det, d["rotation_period"])
+        return cls(mask, DetectorArray.from_dict(d["detectors"]), d["rotation_period"])
 
     @classmethod
     def paper(

@@ -1,4 +1,4 @@
-"""The rotating mask of parallel slats."""
+"""The rotating mask of parallel slats, as designed or as built."""
 
 from __future__ import annotations
 
@@ -8,11 +8,18 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_scalar
+from rotmod._validate import as_angle_scalar, as_array, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.materials import Material
 
-__all__ = ["Mask"]
+__all__ = ["OUTLINES", "Mask"]
+
+#: Mask outlines: ``None`` (infinite), a disc of radius ``outline_size`` or a square of
+#: half-width ``outline_size`` whose sides run along and across the slats.
+OUTLINES = (None, "circle", "square")
+
+#: Relative tolerance (of the period) for slat-edge checks and pattern symmetry.
+_EDGE_RTOL = 1e-12
 
 
 @dataclass(frozen=True)
@@ -34,11 +41,35 @@ class Mask:
     mu : float or Quantity, optional
         Linear attenuation coefficient (1/cm) overriding the material at every energy;
         ``numpy.inf`` gives perfectly opaque slats, 0 transparent ones.
+    slat_edges : array_like or Quantity, optional
+        A non-uniform pattern: increasing slat edges ``[s0, e0, s1, e1, ...]`` (cm) in the
+        mask coordinate ``u`` at mask angle 0, slat ``k`` covering ``[s_k, e_k]``; the pattern
+        repeats with period ``a + b``, so the edges must span less than one period and the
+        slats' widths must add up to ``a`` (the slat material per period).  Default: one
+        slat ``[b/2, b/2 + a]`` per period (the gap centred on the rotation axis).
+    axis_offset_x, axis_offset_y : float or Quantity
+        Where the rotation axis crosses the mask's bottom face, relative to the detector
+        array's centre (cm; lab x and y).  Default 0: the axis over the array centre.
+    tilt_x, tilt_y : float or Quantity
+        Tilt of the rotation axis (deg if plain numbers): the axis points along
+        ``(sin d cos B, sin d sin B, cos d)`` with ``d = hypot(tilt_x, tilt_y)`` and
+        ``B = atan2(tilt_y, tilt_x)``; the mask's faces are perpendicular to it.  At most
+        10 deg (a misalignment, not a design).
+    outline : {None, "circle", "square"}
+        Extent of the mask: infinite (default), a disc of radius ``outline_size`` or a
+        square of half-width ``outline_size`` with sides along and across the slats, both
+        centred on the rotation axis and turning with the mask.  Rays that miss it are
+        not attenuated.
+    outline_size : float or Quantity, optional
+        Radius or half-width of the outline (cm), > 0; required with an outline.
 
     Notes
     -----
     At mask angle 0 the slats are parallel to y and a gap is centred on the rotation axis:
     slats occupy ``b/2 + k(a+b) <= u <= b/2 + a + k(a+b)`` in the mask coordinate ``u``.
+    The as-built parameters (``slat_edges``, axis offset and tilt, outline) default to the
+    ideal mask, whose numbers they leave untouched; ``docs/conventions.md`` ("The instrument
+    as built") defines the mask frame they set up.
     """
 
     # ``unit`` metadata: the unit a plain number means and the unit instrument files write
@@ -50,6 +81,17 @@ class Mask:
     material: Material = field(default_factory=lambda: Material("Pb"),
                                metadata={"section": "material"})
     mu: float | None = field(default=None, metadata={"unit": "1/cm"})
+    # As-built fields: files write them only when they differ from the ideal mask.
+    slat_edges: tuple[float, ...] | None = field(default=None,
+                                                 metadata={"unit": "cm", "list": True})
+    axis_offset_x: float = field(default=0.0, metadata={"unit": "cm", "skip_default": True})
+    axis_offset_y: float = field(default=0.0, metadata={"unit": "cm", "skip_default": True})
+    # Held as Quantities in rad (so that dataclasses.replace cannot misread them as deg);
+    # files write them in deg.
+    tilt_x: Any = field(default=0.0, metadata={"unit": "deg", "skip_default": True})
+    tilt_y: Any = field(default=0.0, metadata={"unit": "deg", "skip_default": True})
+    outline: str | None = field(default=None, metadata={"text": True})
+    outline_size: float | None = field(default=None, metadata={"unit": "cm"})
 
     def __post_init__(self) -> None:
         cm = u.cm
@@ -87,6 +129,62 @@ class Mask:
                 object.__setattr__(self, "mu", np.inf)
             else:
                 object.__setattr__(self, "mu", as_scalar(mu, "mask.mu", 1 / cm, lo=0.0))
+        self._check_as_built(a, b)
+
+    def _check_as_built(self, a: float, b: float) -> None:
+        """Validate and canonicalise the as-built fields (edges, axis, outline)."""
+        p = a + b
+        if self.slat_edges is not None:
+            e = as_array(self.slat_edges, "mask.slat_edges", u.cm, ndim=1)
+            tol = _EDGE_RTOL * p
+            if e.size < 2 or e.size % 2:
+                raise ParameterError(
+                    "mask.slat_edges must hold an even number (>= 2) of edges [s0, e0, s1, "
+                    f"e1, ...], got {e.size}"
+                )
+            if np.any(np.diff(e) <= 0):
+                raise ParameterError(
+                    f"mask.slat_edges must be strictly increasing, got {e.tolist()} cm"
+                )
+            if e[-1] - e[0] >= p - tol:
+                raise ParameterError(
+                    "mask.slat_edges must span less than one period (slat_width + slat_gap "
+                    f"= {p:g} cm), got {e[-1] - e[0]:g} cm from {e[0]:g} to {e[-1]:g} cm"
+                )
+            width = float(np.sum(e[1::2] - e[0::2]))
+            if abs(width - a) > 1e-9 * p:
+                raise ParameterError(
+                    f"mask.slat_edges must give slats whose widths add up to mask.slat_width "
+                    f"= {a:g} cm (the slat material per period), got {width:.12g} cm"
+                )
+            object.__setattr__(self, "slat_edges", tuple(float(v) for v in e))
+        for name in ("axis_offset_x", "axis_offset_y"):
+            object.__setattr__(self, name, as_scalar(getattr(self, name), f"mask.{name}", u.cm))
+        for name in ("tilt_x", "tilt_y"):
+            t = as_angle_scalar(getattr(self, name), f"mask.{name}", lo=-10.0, hi=10.0)
+            object.__setattr__(self, name, t * u.rad)
+        if self.tilt > np.deg2rad(10.0):
+            raise ParameterError(
+                "mask.tilt_x, mask.tilt_y must tilt the axis by at most 10 deg, got "
+                f"{np.rad2deg(self.tilt):g} deg"
+            )
+        if self.outline not in OUTLINES:
+            raise ParameterError(
+                f"mask.outline must be one of {list(OUTLINES)}, got {self.outline!r}"
+            )
+        if self.outline is None:
+            if self.outline_size is not None:
+                raise ParameterError(
+                    "mask.outline_size needs mask.outline ('circle' or 'square'), got "
+                    f"outline_size = {self.outline_size} with no outline"
+                )
+        else:
+            if self.outline_size is None:
+                raise ParameterError(
+                    f"mask.outline_size (cm) is required with mask.outline = {self.outline!r}"
+                )
+            object.__setattr__(self, "outline_size", as_scalar(
+                self.outline_size, "mask.outline_size", u.cm, lo=0.0, lo_open=True))
 
     @property
     def period(self) -> float:
@@ -97,6 +195,82 @@ class Mask:
     def open_fraction(self) -> float:
         """Geometric open fraction ``b / (a + b)``."""
         return self.slat_gap / self.period
+
+    @property
+    def edges(self) -> np.ndarray:
+        """Slat edges ``[s0, e0, s1, e1, ...]`` of one period (cm): ``slat_edges``, or the
+        ideal ``[b/2, b/2 + a]``."""
+        if self.slat_edges is not None:
+            return np.array(self.slat_edges)
+        return np.array([0.5 * self.slat_gap, 0.5 * self.slat_gap + self.slat_width])
+
+    def frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(Q, c_m)``: the rotation from the lab to the mask frame (3 x 3) and the centre of
+        the mask's bottom face (cm), where the rotation axis crosses it.
+
+        ``Q`` is the inverse (transpose) of the smallest rotation taking the lab ``z`` axis
+        to the tilted axis ``n`` (Rodrigues' formula about ``z x n``); with no tilt it is
+        the identity, exactly.  At mask angle ``xi`` the slat-frame coordinates of a lab
+        point ``q`` are ``R_z(xi) Q (q - c_m)``: ``u`` across the slats, ``v`` along them,
+        ``z'`` above the bottom face (docs/conventions.md, "The instrument as built").
+        """
+        tx, ty = self.tilt_rad
+        d = float(np.hypot(tx, ty))
+        c_m = np.array([self.axis_offset_x, self.axis_offset_y, self.height])
+        if d == 0.0:
+            return np.eye(3), c_m
+        k = np.array([-ty / d, tx / d, 0.0])  # unit vector along z x n
+        K = np.array([[0.0, 0.0, k[1]], [0.0, 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        R = np.cos(d) * np.eye(3) + np.sin(d) * K + (1.0 - np.cos(d)) * np.outer(k, k)
+        return np.ascontiguousarray(R.T), c_m
+
+    def pattern(self) -> tuple[float, np.ndarray, np.ndarray, float]:
+        """``(e0, W, cum, p)``: the slat pattern as the kernels take it: the first edge
+        ``e0`` (cm), the edges of one period relative to it ``W`` (``W[0] = 0``), the slat
+        measure from ``e0`` to each edge ``cum`` and the period ``p``."""
+        E = self.edges
+        W = E - E[0]
+        widths = np.zeros(E.size)
+        widths[1::2] = W[1::2] - W[0::2]
+        return float(E[0]), W, np.cumsum(widths), self.period
+
+    @property
+    def tilt_rad(self) -> tuple[float, float]:
+        """``(tilt_x, tilt_y)`` as plain floats in rad (for the kernels)."""
+        return float(self.tilt_x.to_value(u.rad)), float(self.tilt_y.to_value(u.rad))
+
+    @property
+    def tilt(self) -> float:
+        """Tilt of the rotation axis from the lab z axis (rad)."""
+        return float(np.hypot(*self.tilt_rad))
+
+    @property
+    def is_ideal(self) -> bool:
+        """True for the paper's mask: equal slats with a gap centred on the axis, the axis
+        on the array centre and parallel to z, infinite extent."""
+        return (self.slat_edges is None and self.axis_offset_x == 0.0
+                and self.axis_offset_y == 0.0 and self.tilt == 0.0 and self.outline is None)
+
+    @property
+    def half_turn_symmetric(self) -> bool:
+        """Whether a half turn maps the mask onto itself (so ``P(xi + pi) = P(xi)``).
+
+        A half turn about the mask's own axis maps every point ``u`` of its pattern to
+        ``-u``; the mask is unchanged when the slat pattern is symmetric under ``u -> -u``
+        (to 1e-12 of the period).  An offset or tilted axis does not break the symmetry:
+        the mask still turns about its own axis, and its outline is centred on it.
+        """
+        if self.slat_edges is None:
+            return True
+        p = self.period
+        e = self.edges
+        mirrored = np.sort(np.mod(-e[::-1] - e[0], p))
+        own = np.sort(np.mod(e - e[0], p))
+        # Compare the two patterns as sets of edges modulo the period (one rotation of the
+        # list may wrap an edge from near p to near 0).
+        d = np.abs(mirrored[:, None] - own[None, :])
+        d = np.minimum(d, p - d)
+        return bool(np.all(d.min(axis=1) <= _EDGE_RTOL * p * 10))
 
     def linear_attenuation(self, energy: Any = None) -> float:
         """Linear attenuation coefficient of the slats (1/cm) at ``energy`` (keV).
@@ -123,9 +297,10 @@ class Mask:
 
     def slat_fraction(self, u0: np.ndarray) -> np.ndarray:
         """1 where mask coordinate ``u0`` lies in a slat, 0 in a gap (edges count as slat)."""
-        p = self.period
-        w = np.mod(np.asarray(u0, dtype=float) - self.slat_gap / 2, p)
-        return (w <= self.slat_width).astype(float)
+        e = self.edges
+        w = np.mod(np.asarray(u0, dtype=float) - e[0], self.period)[..., None]
+        inside = (w >= e[0::2] - e[0]) & (w <= e[1::2] - e[0])
+        return np.any(inside, axis=-1).astype(float)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-number description (cm, 1/cm, g/cm3, cm2/g) for metadata and files."""
@@ -138,4 +313,22 @@ class Mask:
             "density": self.material.density,
             "mass_attenuation": self.material.mass_attenuation,
             "mu": None if self.mu is None else float(self.mu),
+            **self._as_built_dict(),
         }
+
+    def _as_built_dict(self) -> dict[str, Any]:
+        """The as-built fields that differ from the ideal mask (cm, deg), so that an ideal
+        mask's description is unchanged (stored responses and files compare it)."""
+        out: dict[str, Any] = {}
+        if self.slat_edges is not None:
+            out["slat_edges"] = list(self.slat_edges)
+        for name in ("axis_offset_x", "axis_offset_y"):
+            if getattr(self, name) != 0.0:
+                out[name] = getattr(self, name)
+        for name, t in zip(("tilt_x", "tilt_y"), self.tilt_rad, strict=True):
+            if t != 0.0:
+                out[name] = float(np.rad2deg(t))
+        if self.outline is not None:
+            out["outline"] = self.outline
+            out["outline_size"] = self.outline_size
+        return out

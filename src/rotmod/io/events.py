@@ -62,6 +62,18 @@ def _instrument_cards(inst: Instrument, start_phase: float) -> list[tuple[str, A
             cards.append(("MASK_MU", "INF", "[1/cm] fixed linear attenuation: opaque"))
         else:
             cards.append(("MASK_MU", m["mu"], "[1/cm] fixed linear attenuation"))
+    cards += [(key, m[name], comment) for name, key, comment in _AS_BUILT_CARDS if name in m]
+    if "slat_edges" in m:
+        cards.append(("MASK_EDG", json.dumps(m["slat_edges"]),
+                      "[cm] slat edges of one period (JSON list)"))
+    det = d["detectors"]
+    if "thickness" in det:
+        cards += [("DET_H", det["thickness"], "[cm] detector thickness H"),
+                  ("DET_MAT", det["material"], "detector material"),
+                  ("DET_RHO", det["density"], "[g/cm3] detector density")]
+        if det["mass_attenuation"] is not None:
+            cards.append(("DET_SIG", det["mass_attenuation"],
+                          "[cm2/g] fixed detector mass attenuation"))
     cards += [
         ("DET_DIAM", d["detectors"]["diameter"], "[cm] detector diameter c"),
         ("NDET", len(inst.detectors), "number of detectors"),
@@ -70,6 +82,17 @@ def _instrument_cards(inst: Instrument, start_phase: float) -> list[tuple[str, A
          "[deg] mask angle at TIME = 0"),
     ]
     return cards
+
+
+#: The mask as built, as header cards (written only when they differ from the ideal mask).
+_AS_BUILT_CARDS = (
+    ("axis_offset_x", "MASK_OX", "[cm] rotation axis at the mask, x"),
+    ("axis_offset_y", "MASK_OY", "[cm] rotation axis at the mask, y"),
+    ("tilt_x", "MASK_TX", "[deg] tilt of the rotation axis, x"),
+    ("tilt_y", "MASK_TY", "[deg] tilt of the rotation axis, y"),
+    ("outline", "MASK_OUT", "mask outline (circle or square)"),
+    ("outline_size", "MASK_OSZ", "[cm] outline radius or half-width"),
+)
 
 
 def _detectors_hdu(inst: Instrument) -> fits.BinTableHDU:
@@ -253,6 +276,21 @@ def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> In
         },
         "rotation_period": _num(header, "ROT_PER", path, ext),
     }
+    for name, key, _ in _AS_BUILT_CARDS:
+        if key in header:
+            d["mask"][name] = (str(header[key]) if name == "outline"
+                               else _num(header, key, path, ext))
+    if "MASK_EDG" in header:
+        try:
+            d["mask"]["slat_edges"] = [float(v) for v in json.loads(str(header["MASK_EDG"]))]
+        except (ValueError, TypeError):
+            raise RotmodError(f"file {str(path)!r}: {ext} keyword MASK_EDG must be a JSON "
+                              f"list of numbers, got {header['MASK_EDG']!r}") from None
+    if "DET_H" in header:
+        d["detectors"].update(
+            thickness=_num(header, "DET_H", path, ext), material=str(header.get("DET_MAT")),
+            density=_num(header, "DET_RHO", path, ext),
+            mass_attenuation=_num(header, "DET_SIG", path, ext) if "DET_SIG" in header else None)
     try:
         return Instrument.from_dict(d)
     except RotmodError as exc:

@@ -15,6 +15,7 @@ angle and source, with binomial errors) and :func:`simulate_observation` (a time
 :class:`~rotmod.events.EventList` of a rotating mask).
 """
 
+from rotmod.montecarlo._rng import seed_sequence
 from rotmod.montecarlo.simulate import (
     MCProfiles,
     chord_lengths,
@@ -28,6 +29,7 @@ __all__ = [
     "MCProfiles",
     "PointSources",
     "chord_lengths",
+    "seed_sequence",
     "simulate_drift",
     "simulate_observation",
     "simulate_profiles",

@@ -11,10 +11,10 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle, as_angle_scalar, as_array, as_scalar
+from rotmod._validate import as_angle, as_angle_scalar, as_array, as_distance, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, check_gti
-from rotmod.geometry import Instrument
+from rotmod.geometry import Instrument, disc_flux
 from rotmod.limits import check_memory
 from rotmod.montecarlo import _transport as tr
 from rotmod.montecarlo._rng import chunk_states, seed_sequence
@@ -102,6 +102,17 @@ class MCProfiles:
     energy : float or None
         Photon energy (keV) used for the attenuation.
     instrument : Instrument
+    scale : float or ndarray, shape (n_det, 1, n_src)
+        Simulated photons per photon crossing one unobstructed detector face: 1 when
+        photons are drawn on the face (flat detectors); for thick detectors they are drawn
+        on a larger disc holding the detector's shadow, and ``scale`` (>= 1) is the ratio of
+        the flux through that disc to the flux through the face.  ``P = counts / n_photons
+        * scale`` (compare a model with ``counts`` through ``P / scale``).
+    distance : ndarray, shape (n_src,)
+        Source distances (cm; ``inf``: at infinity).
+    poisson : bool
+        Whether each cell's number of photons was Poisson of mean ``n_photons`` (as in a
+        measurement) rather than exactly ``n_photons``.
     """
 
     counts: np.ndarray
@@ -112,6 +123,9 @@ class MCProfiles:
     xi_edges: u.Quantity | None
     energy: float | None
     instrument: Instrument
+    scale: Any = 1.0
+    distance: Any = None
+    poisson: bool = False
 
     def __repr__(self) -> str:
         d, t, n = self.counts.shape
@@ -122,17 +136,19 @@ class MCProfiles:
 
     @property
     def fraction(self) -> np.ndarray:
-        """Transmitted fraction ``P[d, t, n] = counts / n_photons``."""
-        return self.counts / self.n_photons
+        """Counts per photon of an unobstructed face, ``P[d, t, n] = counts / n_photons *
+        scale`` (the transmitted fraction for flat detectors)."""
+        return self.counts / self.n_photons * self.scale
 
     @property
     def error(self) -> np.ndarray:
-        """Binomial 1-sigma error of :attr:`fraction`, ``sqrt(f (1 - f) / n_photons)``.
+        """Binomial 1-sigma error of :attr:`fraction`, ``scale sqrt(f (1 - f) / n_photons)``
+        with ``f = counts / n_photons``.
 
         Zero where ``f`` is 0 or 1; use the model's ``P (1 - P) / n`` for chi-square tests.
         """
-        f = self.fraction
-        return np.sqrt(f * (1.0 - f) / self.n_photons)
+        f = self.counts / self.n_photons
+        return self.scale * np.sqrt(f * (1.0 - f) / self.n_photons)
 
 
 def _chunks(n_cells: int, n_photons: int, chunk: int) -> tuple[np.ndarray, ...]:
@@ -162,12 +178,21 @@ def simulate_profiles(
     seed: Any = None,
     chunk_size: int = DEFAULT_CHUNK,
     progress: Progress = None,
+    distance: Any = None,
+    poisson: bool = False,
 ) -> MCProfiles:
     """Monte Carlo characteristic profiles ``P[d, t, n]`` with binomial errors.
 
     For every detector ``d``, mask angle ``t`` and source ``n``, ``n_photons`` photons are
     sampled uniformly on the detector face, traced back along the source direction through
     the 3-D slat boxes, and survive with probability ``exp(-mu * chord)``.
+
+    The instrument as built (``Instrument.is_ideal`` false) and sources at a finite
+    ``distance`` take a second kernel: the mask in its own (offset, tilted) frame with any
+    slat pattern and outline, photons drawn on the face with the flux density of a point
+    source (``cos(incidence) / r^2``), and thick detectors counting photons that interact
+    in the cylinder (drawn on a disc that holds the detector's shadow; see
+    :attr:`MCProfiles.scale`).
 
     Parameters
     ----------
@@ -190,6 +215,12 @@ def simulate_profiles(
         Photons per parallel chunk (each with its own random stream), >= 1.
     progress : bool or callable, optional
         ``True`` shows a tqdm bar; a callable is called as ``progress(done, total)``.
+    distance : float, array_like or Quantity, optional
+        Distance of each source from the origin (the array centre in the detector plane)
+        along its direction (cm); ``None`` or ``inf``: at infinity.
+    poisson : bool
+        Draw each cell's number of photons from a Poisson law of mean ``n_photons`` (the
+        counts of a measurement, for likelihood fits) instead of exactly ``n_photons``.
 
     Returns
     -------
@@ -198,7 +229,7 @@ def simulate_profiles(
     Raises
     ------
     ParameterError
-        Bad geometry, directions, angles or counts.
+        Bad geometry, directions, angles, distances or counts.
     """
     inst = _check_instrument(instrument)
     th = as_angle(theta, "theta", lo=0.0, hi=90.0, hi_open=True, ndim=1)
@@ -233,6 +264,9 @@ def simulate_profiles(
     n_photons = _check_count(n_photons, "n_photons", 1)
     chunk_size = _check_count(chunk_size, "chunk_size", 1)
     e = None if energy is None else as_scalar(energy, "energy", u.keV, lo=0.0, lo_open=True)
+    dist = as_distance(distance, th.size)
+    if not isinstance(poisson, bool | np.bool_):
+        raise ParameterError(f"poisson must be True or False, got {poisson!r}")
     mu = np.full(th.size, inst.mask.linear_attenuation(e))
     a, b, L, h, thin = _mask_params(inst)
     thin_opaque = thin and bool(np.isinf(mu[0]))
@@ -242,23 +276,32 @@ def simulate_profiles(
     check_memory(8.0 * n_cells * (1 + math.ceil(n_photons / chunk_size)),
                  f"a Monte Carlo of {n_det} detectors x {n_t} angles x {n_n} sources",
                  hint="simulate fewer angles or sources at a time")
+    as_built = not inst.is_ideal or bool(np.isfinite(dist).any()) or poisson
+    scale: Any = 1.0
+    if as_built:
+        kernel = tr.profile_kernel_asbuilt
+        *args, scale = _asbuilt_args(inst, th, ph, dist, mu, e, xi_lo, xi_w, binned,
+                                     thin_opaque, n_t, n_n)
+        args_geom = (bool(poisson), *args)
+    else:
+        kernel = tr.profile_kernel
+        args_geom = (
+            np.ascontiguousarray(det.positions[:, 0]), np.ascontiguousarray(det.positions[:, 1]),
+            det.radius, np.sin(th), np.cos(th), np.cos(ph), np.sin(ph), mu,
+            np.ascontiguousarray(xi_lo), np.ascontiguousarray(xi_w), binned,
+            a, b, L, h, thin_opaque, n_t, n_n,
+        )
     lo, hi, part, nphot, m = _chunks(n_cells, n_photons, chunk_size)
     counts = np.zeros((m, n_cells), dtype=np.int64)
     root = seed_sequence(seed)
     total = n_cells * n_photons
     update, close = _progress_fn(progress, total, "MC profiles")
     done = 0
-    args_geom = (
-        np.ascontiguousarray(det.positions[:, 0]), np.ascontiguousarray(det.positions[:, 1]),
-        det.radius, np.sin(th), np.cos(th), np.cos(ph), np.sin(ph), mu,
-        np.ascontiguousarray(xi_lo), np.ascontiguousarray(xi_w), binned,
-        a, b, L, h, thin_opaque, n_t, n_n,
-    )
     try:
         for s in range(0, lo.size, _BATCH_CHUNKS):
             sl = slice(s, s + _BATCH_CHUNKS)
             states = chunk_states(root, lo[sl].size)
-            tr.profile_kernel(
+            kernel(
                 lo[sl].astype(np.int64), hi[sl].astype(np.int64), part[sl].astype(np.int64),
                 nphot[sl].astype(np.int64), states, *args_geom, counts,
             )
@@ -269,7 +312,59 @@ def simulate_profiles(
     log.debug("simulate_profiles: %d photons in %d chunks", total, lo.size)
     return MCProfiles(
         counts.sum(axis=0).reshape(n_det, n_t, n_n), n_photons, th * u.rad, ph * u.rad,
-        xs * u.rad, None if edges is None else edges * u.rad, e, inst,
+        xs * u.rad, None if edges is None else edges * u.rad, e, inst, scale, dist,
+        bool(poisson),
+    )
+
+
+def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.ndarray,
+                  mu: np.ndarray, energy: float | None, xi_lo: np.ndarray, xi_w: np.ndarray,
+                  binned: bool, thin_opaque: bool, n_t: int, n_n: int) -> tuple:
+    """Arguments of :func:`~rotmod.montecarlo._transport.profile_kernel_asbuilt` (after
+    ``poisson_counts``), with the :attr:`MCProfiles.scale` last."""
+    det, mask = inst.detectors, inst.mask
+    pos = det.positions
+    R, H = det.radius, det.thickness
+    n_det = len(det)
+    S = inst.source_positions(th, ph, dist)
+    finite = np.isfinite(dist)
+    st = np.sin(th)
+    dirs = np.stack([st * np.cos(ph), st * np.sin(ph), np.cos(th)], axis=1)
+    src = np.where(finite[:, None], S, dirs)
+    gen = np.empty((n_det, n_n, 3))
+    wmax = np.ones((n_det, n_n))
+    scale = np.ones((n_det, 1, n_n))
+    for n in range(n_n):
+        for d in range(n_det):
+            c = pos[d]
+            if finite[n]:
+                # The bottom face's shadow from S: a disc of radius R / (1 + H / z_s) centred
+                # on (c + S_xy H / z_s) / (1 + H / z_s) (docs/physics.md, thick detectors).
+                k = 1.0 + H / S[n, 2]
+                cb = (c + S[n, :2] * H / S[n, 2]) / k
+            else:
+                cb = c + H * np.tan(th[n]) * np.array([np.cos(ph[n]), np.sin(ph[n])])
+            g = 0.5 * (c + cb)
+            gr = R + 0.5 * float(np.hypot(*(cb - c)))
+            gen[d, n] = (g[0], g[1], gr)
+            if finite[n]:
+                near = max(0.0, float(np.hypot(*(S[n, :2] - g))) - gr)
+                wmax[d, n] = S[n, 2] / (near**2 + S[n, 2] ** 2) ** 1.5
+                if H > 0:
+                    scale[d, 0, n] = disc_flux(S[n], g, gr) / disc_flux(S[n], c, R)
+            elif H > 0:
+                scale[d, 0, n] = (gr / R) ** 2
+    mu_det = np.full(n_n, det.linear_attenuation(energy) if H > 0 else 0.0)
+    Q, cm = mask.frame()
+    e0, W, _, p = mask.pattern()
+    kind = {None: 0, "circle": 1, "square": 2}[mask.outline]
+    size = 0.0 if mask.outline_size is None else mask.outline_size
+    return (
+        np.ascontiguousarray(pos[:, 0]), np.ascontiguousarray(pos[:, 1]), R, H, mu_det,
+        gen, wmax, np.ascontiguousarray(src), finite, mu,
+        np.ascontiguousarray(xi_lo), np.ascontiguousarray(xi_w), binned,
+        Q, cm, mask.thickness, e0, W, p, kind, size, thin_opaque, n_t, n_n,
+        scale if H > 0 else 1.0,
     )
 
 
@@ -375,6 +470,12 @@ def simulate_observation(
     inst = _check_instrument(instrument)
     if not isinstance(sources, PointSources):
         raise ParameterError(f"sources must be PointSources, got {type(sources)}")
+    if not inst.is_ideal:
+        raise ParameterError(
+            "simulate_observation transports photons through the ideal instrument only, got "
+            f"one as built ({', '.join(inst.as_built_features())}); simulate folded counts "
+            "with simulate_profiles(..., xi_edges=..., poisson=True)"
+        )
     t0 = as_scalar(t_start, "t_start", u.s)
     t1 = None if t_stop is None else as_scalar(t_stop, "t_stop", u.s)
     if gti is None and t1 is None:

@@ -29,8 +29,8 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
-from rotmod._validate import as_angle, as_float_dtype
-from rotmod.errors import ParameterError
+from rotmod._validate import as_angle, as_distance, as_float_dtype
+from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
 
@@ -61,6 +61,13 @@ class ProjectedGeometry:
         Source zenith and azimuth (rad).
     mu : float
         Linear attenuation coefficient of the slats (1/cm).
+    positions : ndarray, shape (n_det, 2)
+        Detector centres (cm) of the detectors this geometry covers.
+    distance : ndarray, shape (n_src,)
+        Source distances from the origin (cm; ``inf``: at infinity, the only case the
+        ``X ... tau`` above describe).
+    mu_det : float
+        Linear attenuation coefficient of thick detectors (1/cm; 0 for flat faces).
     """
 
     X: np.ndarray
@@ -71,6 +78,14 @@ class ProjectedGeometry:
     theta: np.ndarray
     phi: np.ndarray
     mu: float
+    positions: np.ndarray | None = None
+    distance: np.ndarray | None = None
+    mu_det: float = 0.0
+
+    @property
+    def at_infinity(self) -> bool:
+        """Whether every source is at infinity (parallel rays)."""
+        return self.distance is None or not bool(np.isfinite(self.distance).any())
 
     def mask_coordinates(self, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``uc[d, t, n]`` and ``s[t, n]`` at mask angles ``xi`` (plain numpy; for checks)."""
@@ -103,7 +118,9 @@ def check_angles(xi: Any) -> np.ndarray:
     return as_angle(xi, "xi", ndim=1)
 
 
-def project(instrument: Instrument, theta: Any, phi: Any, energy: Any = None) -> ProjectedGeometry:
+def project(
+    instrument: Instrument, theta: Any, phi: Any, energy: Any = None, distance: Any = None
+) -> ProjectedGeometry:
     """Compute the :class:`ProjectedGeometry` of ``instrument`` for sources ``(theta, phi)``.
 
     Parameters
@@ -113,12 +130,24 @@ def project(instrument: Instrument, theta: Any, phi: Any, energy: Any = None) ->
         Source zenith (0 <= theta < 90 deg) and azimuth; deg if plain numbers.
     energy : float or Quantity, optional
         Photon energy (keV); needed unless the mask has an explicit ``mu``.
+    distance : float, array_like or Quantity, optional
+        Source distances from the origin along their directions (cm; one for all or one
+        per source); ``None`` or ``inf``: at infinity.
+
+    Raises
+    ------
+    ParameterError
+        Bad directions or distances (a finite source must lie above the mask's top face).
     """
     if not isinstance(instrument, Instrument):
         raise ParameterError(f"instrument must be an Instrument, got {type(instrument).__name__}")
     th, ph = check_sources(theta, phi)
+    dist = as_distance(distance, th.size)
+    if np.isfinite(dist).any():
+        instrument.source_positions(th, ph, dist)  # validates: above the mask's top face
     mask, det = instrument.mask, instrument.detectors
     mu = mask.linear_attenuation(energy)
+    mu_det = 0.0 if det.is_flat else det.linear_attenuation(energy)
     t = np.tan(th)
     X = det.positions[:, 0:1] + mask.height * t * np.cos(ph)
     Y = det.positions[:, 1:2] + mask.height * t * np.sin(ph)
@@ -131,7 +160,7 @@ def project(instrument: Instrument, theta: Any, phi: Any, energy: Any = None) ->
         tau = np.full_like(th, np.inf)
     else:
         tau = mu * h / np.cos(th)
-    return ProjectedGeometry(X, Y, Sx, Sy, tau, th, ph, mu)
+    return ProjectedGeometry(X, Y, Sx, Sy, tau, th, ph, mu, det.positions, dist, mu_det)
 
 
 class ProfileModel(ABC):
@@ -148,6 +177,9 @@ class ProfileModel(ABC):
     #: layer computes only half a turn of time bins.  A model of an asymmetric mask must set
     #: this to False.
     half_turn_symmetric: ClassVar[bool] = True
+    #: Whether the model describes the instrument as built (``Instrument.is_ideal`` false,
+    #: sources at a finite distance); the others refuse such instruments.
+    handles_as_built: ClassVar[bool] = False
 
     def profile(
         self,
@@ -158,6 +190,7 @@ class ProfileModel(ABC):
         energy: Any = None,
         *,
         dtype: Any = np.float64,
+        distance: Any = None,
     ) -> np.ndarray:
         """Characteristic profiles ``P[d, t, n]``.
 
@@ -172,19 +205,23 @@ class ProfileModel(ABC):
             Photon energy (keV); needed unless the mask has an explicit ``mu``.
         dtype : numpy dtype
             float64 (default) or float32 output.
+        distance : float, array_like or Quantity, optional
+            Source distances from the origin (cm); ``None`` or ``inf``: at infinity.  Only
+            models with :attr:`handles_as_built` take finite distances.
 
         Returns
         -------
         numpy.ndarray, shape (n_det, n_angle, n_src)
-            Values in [0, 1].
+            Values in [0, 1] (thick detectors: counts per photon of an unobstructed face,
+            up to the effective-area ratio; docs/physics.md).
 
         Raises
         ------
         ParameterError, MaterialError, ModelValidityError
         """
-        geom = project(instrument, theta, phi, energy)
+        geom = project(instrument, theta, phi, energy, distance)
         xi = check_angles(xi)
-        self.check_validity(instrument, geom)
+        self.validate(instrument, geom)
         dt = as_float_dtype(dtype)
         n_det = len(instrument.detectors)
         check_memory(float(n_det) * xi.size * geom.theta.size * dt.itemsize,
@@ -193,6 +230,27 @@ class ProfileModel(ABC):
         out = np.empty((len(instrument.detectors), xi.size, geom.theta.size), dtype=dt)
         self._evaluate(instrument, geom, np.cos(xi), np.sin(xi), out)
         return out
+
+    def validate(self, instrument: Instrument, geom: ProjectedGeometry) -> None:
+        """Refuse an instrument as built unless the model describes it, then
+        :meth:`check_validity`.
+
+        Raises
+        ------
+        ModelValidityError
+        """
+        if not self.handles_as_built and not instrument.is_ideal:
+            raise ModelValidityError(
+                f"the {self.name!r} model describes the ideal instrument, but this one is "
+                f"as built ({', '.join(instrument.as_built_features())}); use the 'exact' "
+                "model"
+            )
+        if not self.handles_as_built and not geom.at_infinity:
+            raise ModelValidityError(
+                f"the {self.name!r} model describes sources at infinity, but some are at a "
+                "finite distance; use the 'exact' model"
+            )
+        self.check_validity(instrument, geom)
 
     def check_validity(  # noqa: B027 - a deliberate no-op: models valid everywhere keep it
         self, instrument: Instrument, geom: ProjectedGeometry

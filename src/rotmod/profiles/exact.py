@@ -45,28 +45,31 @@ from rotmod.geometry import Instrument
 from rotmod.profiles.base import ProfileModel, ProjectedGeometry, register_model
 from rotmod.profiles.standard import segment_fraction
 
-__all__ = ["ExactModel", "exact_point"]
+__all__ = ["ExactModel", "exact_point", "point_edges"]
 
 #: |s| / (a + b) below which the ray is taken as parallel to the slat walls (s = 0).
 _S_ZERO = 1e-13
 
 
 @njit(cache=True)
-def _edge(j: int, a: float, b: float) -> float:
-    """Slat edge number ``j`` in increasing order: even = slat start, odd = slat end."""
-    k = j // 2
-    e = 0.5 * b + k * (a + b)
-    if j % 2 == 1:
-        e += a
-    return e
+def _edge(j: int, e0: float, W: np.ndarray, p: float) -> float:
+    """Slat edge number ``j`` in increasing order of the pattern whose period ``p`` has its
+    edges at ``e0 + W`` (``W = [0, e0', s1', e1', ...]`` relative to the first edge ``e0``):
+    even = slat start, odd = slat end."""
+    n = W.size
+    k = j // n
+    i = j - k * n
+    # For the ideal pattern (e0 = b/2, W = [0, a]) this is b/2 + k p (+ a), the rounding the
+    # ideal walk always had.
+    return e0 + k * p + W[i]
 
 
 @njit(cache=True)
-def _first_edge_above(x: float, a: float, b: float) -> int:
-    j = 2 * math.floor((x - 0.5 * b) / (a + b))
-    while _edge(j, a, b) > x:
+def _first_edge_above(x: float, e0: float, W: np.ndarray, p: float) -> int:
+    j = W.size * math.floor((x - e0) / p)
+    while _edge(j, e0, W, p) > x:
         j -= 1
-    while _edge(j, a, b) <= x:
+    while _edge(j, e0, W, p) <= x:
         j += 1
     return j
 
@@ -81,28 +84,42 @@ def _transmission(frac: float, tau: float) -> float:
     return math.exp(-tau * frac)
 
 
+@njit(cache=True, inline="always")
+def _cell_measure(r: float, W: np.ndarray, cum: np.ndarray) -> tuple[int, float]:
+    """Where ``r`` (``0 <= r < p`` from the period's first edge) lies: the index of its
+    interval (``2 j`` in slat ``j``, ``2 j - 1`` in the gap before it, the last index in the
+    gap after the last slat) and the slat measure between the first edge and ``r``
+    (``cum[i]``: measure up to relative edge ``W[i]``).  Slats are closed intervals."""
+    n_s = W.size // 2
+    for j in range(n_s):
+        if r <= W[2 * j + 1]:
+            lo = W[2 * j]
+            if r >= lo:
+                return 2 * j, cum[2 * j] + (r - lo)
+            return 2 * j - 1, cum[2 * j]
+    return 2 * n_s - 1, cum[W.size - 1]
+
+
 @njit(cache=True)
-def _path_fraction(x: float, s: float, s_abs: float, a: float, b: float) -> float:
+def _path_fraction(x: float, s: float, s_abs: float, e0: float, W: np.ndarray,
+                   cum: np.ndarray, p: float) -> float:
     """Fraction ``|[x, x + s] ∩ slats| / |s|`` of a ray's path through the slab in slats.
 
-    Both ends are located in their period cell ``k`` (cell coordinate ``r`` in ``[0, p)``,
-    slat at ``0 <= r <= a``), and the measure is ``(k2 - k1) a + min(r2, a) - min(r1, a)``:
-    exactly 0 for two ends in one gap, exactly 1 for two ends in one slat, so no rounding
-    noise of order eps |x| / |s| survives when |s| is small.
+    Both ends are located in their period cell ``k`` (cell coordinate ``r`` in ``[0, p)``
+    from the first edge) and the measure is ``(k2 - k1) a + M(r2) - M(r1)``, ``M`` the slat
+    measure within the cell and ``a = cum[-1]`` that of a period: exactly 0 for two ends in
+    one gap, exactly 1 for two ends in one slat, so no rounding noise of order eps |x| / |s|
+    survives when |s| is small.
     """
-    p = a + b
-    lo = min(x, x + s) - 0.5 * b
-    hi = max(x, x + s) - 0.5 * b
+    lo = min(x, x + s) - e0
+    hi = max(x, x + s) - e0
     k1 = math.floor(lo / p)
     k2 = math.floor(hi / p)
-    r1 = lo - k1 * p
-    r2 = hi - k2 * p
-    if k1 == k2:
-        if r2 <= a:
-            return 1.0  # both ends in one slat
-        if r1 > a:
-            return 0.0  # both ends in one gap
-    g = (k2 - k1) * a + min(r2, a) - min(r1, a)
+    i1, m1 = _cell_measure(lo - k1 * p, W, cum)
+    i2, m2 = _cell_measure(hi - k2 * p, W, cum)
+    if k1 == k2 and i1 == i2:
+        return 1.0 if i1 % 2 == 0 else 0.0  # both ends in one slat, or in one gap
+    g = (k2 - k1) * cum[W.size - 1] + m2 - m1
     return min(max(g / s_abs, 0.0), 1.0)
 
 
@@ -171,6 +188,22 @@ def _gl(gx, gw, t1: float, t2: float, ky: float) -> float:
     return acc * h
 
 
+@njit(cache=True, inline="always")
+def n_subpieces(ya: float, yb: float, de: float) -> int:
+    """Number of equal sub-pieces (in ``y``) of ``[ya, yb]`` (distance from the disc's nearer
+    edge, in radii) for the Gauss–Legendre rule in ``t = sqrt(y)``: the exponent may change
+    by at most ``_CLIP_DE`` (it changes by ``de`` over the piece) and the far edge's branch
+    point must lie outside each sub-piece's Bernstein ellipse of parameter ``_CLIP_XI``."""
+    # Longest sub-piece (in y) with xi >= _CLIP_XI: for a sub-piece of length L whose mid is
+    # at t, xi = 4 t (sqrt 2 - t) / L, concave in t, so the worst sub-pieces are the one at
+    # the edge (t >= sqrt(L)/2, xi >= 2 sqrt(2/L) - 1) and the one at the far end (t <= tb).
+    tb = math.sqrt(yb)
+    ymax = 8.0 / (_CLIP_XI + 1.0) ** 2
+    if tb > 0.5 * _SQRT2:
+        ymax = min(ymax, 4.0 * tb * (_SQRT2 - tb) / _CLIP_XI)
+    return max(math.ceil(de / _CLIP_DE), math.ceil((yb - ya) / ymax), 1)
+
+
 @njit(cache=True, fastmath=_VEC, error_model="numpy")
 def _clip_t(ya: float, yb: float, ea: float, ky: float) -> float:
     """``∫ exp(-(ea + ky (y - ya))) dΦ`` over ``y in [ya, yb]``, where ``y`` is the distance
@@ -191,14 +224,7 @@ def _clip_t(ya: float, yb: float, ea: float, ky: float) -> float:
         if ya >= 0.36 * yb:
             return _gl(_G8_X, _G8_W, math.sqrt(ya), math.sqrt(yb), ky) * scale
         return _gl(_G12_X, _G12_W, math.sqrt(ya), math.sqrt(yb), ky) * scale
-    # Longest sub-piece (in y) with xi >= _CLIP_XI: for a sub-piece of length L whose mid is
-    # at t, xi = 4 t (sqrt 2 - t) / L, concave in t, so the worst sub-pieces are the one at
-    # the edge (t >= sqrt(L)/2, xi >= 2 sqrt(2/L) - 1) and the one at the far end (t <= tb).
-    tb = math.sqrt(yb)
-    ymax = 8.0 / (_CLIP_XI + 1.0) ** 2
-    if tb > 0.5 * _SQRT2:
-        ymax = min(ymax, 4.0 * tb * (_SQRT2 - tb) / _CLIP_XI)
-    nsub = max(math.ceil(de / _CLIP_DE), math.ceil(dy / ymax), 1)
+    nsub = n_subpieces(ya, yb, de)
     step = dy / nsub
     total = 0.0
     t1 = math.sqrt(ya)
@@ -362,12 +388,39 @@ def _point(uc, s, radius, a, b, tau, e_tau):
     if s_abs <= min(a, b):
         return _point_one_slat(uc, s, s_abs, radius, a, b, tau, e_tau)
     # General case (rays through two slats or across a whole slat): walk the pieces.
+    return _walk(uc, s, s_abs, radius, 0.5 * b, np.array((0.0, a)), np.array((0.0, a)), p,
+                 tau)
+
+
+@njit(cache=True)
+def point_edges(uc, s, radius, e0, W, cum, p, tau):
+    """Exact profile value of a mask of any slat pattern for one detector, source and angle.
+
+    The pattern's period ``p`` has its slat edges at ``e0 + W`` (``W[0] = 0``, increasing,
+    ``[start, end]`` pairs) and ``cum[i]`` is the slat measure from ``e0`` to ``e0 + W[i]``;
+    the other arguments are those of :func:`exact_point`.
+    """
+    if tau == 0.0 or cum[W.size - 1] == 0.0:
+        return 1.0
+    uc = uc - p * math.floor(uc / p + 0.5)
+    s_abs = abs(s)
+    if s_abs <= _S_ZERO * p:
+        s = 0.0
+        s_abs = 0.0
+    return _walk(uc, s, s_abs, radius, e0, W, cum, p, tau)
+
+
+@njit(cache=True)
+def _walk(uc, s, s_abs, radius, e0, W, cum, p, tau):
+    """Walk the pieces of the disc between the breakpoints ``e`` and ``e - s`` (every slat
+    edge ``e`` of the pattern ``(e0, W, p)``): closed-form disc fractions where the
+    transmission is constant, clip integrals where it is an exponential in ``u``."""
     lo = uc - radius
     hi = uc + radius
-    ja = _first_edge_above(lo, a, b)
-    ea = _edge(ja, a, b)
-    jb = _first_edge_above(lo + s, a, b)
-    eb = _edge(jb, a, b) - s
+    ja = _first_edge_above(lo, e0, W, p)
+    ea = _edge(ja, e0, W, p)
+    jb = _first_edge_above(lo + s, e0, W, p)
+    eb = _edge(jb, e0, W, p) - s
     cur = lo
     phi_cur = 0.0
     total = 0.0
@@ -377,10 +430,10 @@ def _point(uc, s, radius, a, b, tau, e_tau):
             # Disc fraction below nxt (acos-free polynomial form, ~1e-16).
             phi_nxt = segment_fraction(0.5 * ((nxt - uc) / radius + 1.0)) if nxt < hi else 1.0
             um = 0.5 * (cur + nxt)
-            g1 = _path_fraction(cur, s, s_abs, a, b)
-            g2 = _path_fraction(nxt, s, s_abs, a, b)
+            g1 = _path_fraction(cur, s, s_abs, e0, W, cum, p)
+            g2 = _path_fraction(nxt, s, s_abs, e0, W, cum, p)
             if abs(g2 - g1) * s_abs <= 1e-12 * (nxt - cur + s_abs):
-                gm = _path_fraction(um, s, s_abs, a, b)
+                gm = _path_fraction(um, s, s_abs, e0, W, cum, p)
                 total += _transmission(gm, tau) * (phi_nxt - phi_cur)
             elif not math.isinf(tau):
                 total += _clip_integral(cur, nxt, tau * g1, tau * g2, uc, radius)
@@ -388,10 +441,10 @@ def _point(uc, s, radius, a, b, tau, e_tau):
             phi_cur = phi_nxt
         if ea <= cur:
             ja += 1
-            ea = _edge(ja, a, b)
+            ea = _edge(ja, e0, W, p)
         if eb <= cur:
             jb += 1
-            eb = _edge(jb, a, b) - s
+            eb = _edge(jb, e0, W, p) - s
     return min(max(total, 0.0), 1.0)
 
 
@@ -655,10 +708,13 @@ class ExactModel(ProfileModel):
     """Exact profile from first principles, valid for every geometry (see module notes).
 
     Clip pieces are integrated by Gauss–Legendre quadrature: accurate to 1e-10 (better than
-    1e-12 measured against brute-force quadrature, tests/test_exact.py).
+    1e-12 measured against brute-force quadrature, tests/test_exact.py).  Instruments as
+    built (axis offset and tilt, slat patterns, finite outlines, ...) take
+    :mod:`rotmod.profiles._asbuilt` (docs/physics.md, "The instrument as built").
     """
 
     name = "exact"
+    handles_as_built = True
 
     def _evaluate(
         self,
@@ -668,6 +724,13 @@ class ExactModel(ProfileModel):
         sin_xi: np.ndarray,
         out: np.ndarray,
     ) -> None:
+        if not instrument.is_ideal or not geom.at_infinity:
+            # The instrument as built: offsets, tilts, slat patterns, outlines, sources at a
+            # finite distance.
+            from rotmod.profiles._asbuilt import evaluate
+
+            evaluate(instrument, geom, cos_xi, sin_xi, out)
+            return
         m = instrument.mask
         args = (instrument.detectors.radius, m.slat_width, m.slat_gap)
         nn = out.shape[2]

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from rotmod._validate import as_float_dtype, as_scalar
+from rotmod._validate import as_distance, as_float_dtype, as_scalar
 from rotmod.errors import ParameterError
-from rotmod.geometry import DetectorArray, Instrument
+from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
 from rotmod.profiles.base import (
     DEFAULT_MODEL,
@@ -39,7 +39,7 @@ def _select_detectors(instrument: Instrument, detectors: Any) -> Instrument:
         raise ParameterError(f"detectors must be a non-empty list of indices, got {detectors!r}")
     if np.any(idx < 0) or np.any(idx >= n):
         raise ParameterError(f"detectors must be indices in [0, {n - 1}], got {idx.tolist()}")
-    det = DetectorArray(instrument.detectors.positions[idx], instrument.detectors.diameter)
+    det = instrument.detectors.with_positions(instrument.detectors.positions[idx])
     return Instrument(instrument.mask, det, instrument.rotation_period)
 
 
@@ -57,6 +57,23 @@ class ResponsePlan:
     energy: float | None
     dtype: np.dtype
     geom: ProjectedGeometry
+    distance: float | None = None
+
+    @property
+    def p_max(self) -> float:
+        """Largest value a profile can take: 1, or for thick detectors the effective-area
+        ratio of a black cylinder, ``1 + 2 H s / (pi R)``, ``s`` the steepest ray's
+        horizontal-to-vertical slope (+1 %: a bound, used to refuse damaged stores)."""
+        det = self.instrument.detectors
+        if det.is_flat:
+            return 1.0
+        slope = float(np.max(np.tan(self.geom.theta), initial=0.0))
+        if self.distance is not None:
+            reach = np.hypot(*det.positions.T).max() + det.radius
+            slope = max(slope, (self.distance * float(np.max(np.sin(self.geom.theta),
+                                                               initial=0.0)) + reach)
+                        / (self.distance * float(np.min(np.cos(self.geom.theta)))))
+        return 1.0 + 1.01 * 2.0 * det.thickness * slope / (np.pi * det.radius)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -67,12 +84,15 @@ class ResponsePlan:
     def n_distinct(self) -> int:
         """Number of leading time bins that determine the whole response.
 
-        With an even number of bins ``N`` and a half-turn-symmetric model, bin ``t + N/2``
-        is bin ``t`` turned by exactly half a turn (sub-samples included), so
+        With an even number of bins ``N``, a half-turn-symmetric model and a mask that a half
+        turn maps onto itself (:attr:`Mask.half_turn_symmetric`: every mask but an
+        asymmetric slat pattern; an offset or tilted axis keeps the symmetry), bin
+        ``t + N/2`` is bin ``t`` turned by exactly half a turn (sub-samples included), so
         ``P[:, t + N/2] = P[:, t]`` and only the first ``N/2`` bins are computed.
         """
         n = self.time_bins.n_bins
-        return n // 2 if n % 2 == 0 and self.model.half_turn_symmetric else n
+        symmetric = self.model.half_turn_symmetric and self.instrument.mask.half_turn_symmetric
+        return n // 2 if n % 2 == 0 and symmetric else n
 
     def _sub_geometry(self, d0: int, d1: int, n0: int, n1: int) -> ProjectedGeometry:
         g = self.geom
@@ -88,6 +108,8 @@ class ResponsePlan:
             tau=c(g.tau[n0:n1]),
             theta=c(g.theta[n0:n1]),
             phi=c(g.phi[n0:n1]),
+            positions=c(g.positions[d0:d1]),
+            distance=c(g.distance[n0:n1]),
         )
 
     def block(
@@ -164,10 +186,13 @@ def make_plan(
     *,
     dtype: Any = np.float32,
     detectors: Any = None,
+    distance: Any = None,
 ) -> ResponsePlan:
     """Validate the inputs of a response and project every sky pixel once.
 
-    Parameters are those of :func:`rotmod.response.build_response`.
+    Parameters are those of :func:`rotmod.response.build_response`; ``distance`` (cm, one
+    value) puts every pixel's source at that distance from the origin (a lab field),
+    ``None`` at infinity.
 
     Raises
     ------
@@ -181,10 +206,14 @@ def make_plan(
     check_memory(8.0 * grid.size * (2 * len(inst.detectors) + 6),
                  f"projecting {grid.size} sky pixels for {len(inst.detectors)} detectors",
                  hint="use larger pixels or a smaller field")
+    dist = None
+    if distance is not None:
+        d = as_distance(distance, 1)
+        dist = None if np.isinf(d[0]) else float(d[0])
     theta, phi = grid.directions()
-    geom = project(inst, theta, phi, e)
-    mdl.check_validity(inst, geom)
-    return ResponsePlan(mdl, inst, grid, tb, e, dt, geom)
+    geom = project(inst, theta, phi, e, dist)
+    mdl.validate(inst, geom)
+    return ResponsePlan(mdl, inst, grid, tb, e, dt, geom, dist)
 
 
 def _kev() -> Any:

@@ -23,9 +23,10 @@ class MaterialisedResponse(ResponseOperator):
     matrix : ndarray, shape (n_det, n_time, n_sky)
         The response, float32 or float64 (other types are refused; the array is used as
         is, without a copy, when it is C-contiguous).
-    instrument, grid, time_bins, model, energy : optional
+    instrument, grid, time_bins, model, energy, distance : optional
         What the matrix was computed for (metadata only; see
-        :meth:`ResponseOperator.metadata`).  ``model`` may be a registry name or instance.
+        :meth:`ResponseOperator.metadata`).  ``model`` may be a registry name or instance;
+        ``distance`` (cm) of a lab field's sources.
 
     Raises
     ------
@@ -48,6 +49,7 @@ class MaterialisedResponse(ResponseOperator):
         time_bins: Any = None,
         model: str | ProfileModel | None = None,
         energy: float | None = None,
+        distance: float | None = None,
     ) -> None:
         m = np.asarray(matrix)
         if m.ndim != 3:
@@ -58,6 +60,7 @@ class MaterialisedResponse(ResponseOperator):
         self.n_det, self.n_time, self.n_sky = (int(v) for v in m.shape)
         self.dtype = m.dtype
         _set_metadata(self, instrument, grid, time_bins, model, energy)
+        self.distance = None if distance is None else float(distance)
 
     @property
     def _flat(self) -> np.ndarray:
@@ -163,6 +166,7 @@ def build_response(
     client: Any = None,
     progress: bool = False,
     block_size: tuple[int, int] | None = None,
+    distance: Any = None,
 ) -> MaterialisedResponse:
     """Compute the response ``P[d, t, n]`` of ``instrument`` on ``grid`` and hold it in memory.
 
@@ -191,6 +195,9 @@ def build_response(
     block_size : (int, int), optional
         ``(time bins, sky pixels)`` per block for the distributed path
         (default: chosen for ~32 MB blocks).
+    distance : float or Quantity, optional
+        Sources at this distance (cm) from the origin in the pixels' directions (a lab
+        field; the ``exact`` model only); default at infinity.
 
     Returns
     -------
@@ -200,7 +207,8 @@ def build_response(
     ------
     ParameterError, MaterialError, ModelValidityError
     """
-    plan = make_plan(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors)
+    plan = make_plan(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors,
+                     distance=distance)
     d, t, n = plan.shape
     check_memory(float(d) * t * n * plan.dtype.itemsize,
                  f"a response matrix of {d} detectors x {t} time bins x {n} pixels "
@@ -223,4 +231,5 @@ def build_response(
         time_bins=plan.time_bins,
         model=plan.model,
         energy=plan.energy,
+        distance=plan.distance,
     )

@@ -48,6 +48,9 @@ class MatrixFreeResponse(ResponseOperator):
         local threads.
     progress : bool
         tqdm progress bar over the blocks of each product.
+    distance : float or Quantity, optional
+        Sources at this distance (cm): a lab field (see
+        :func:`~rotmod.response.build_response`).
 
     Raises
     ------
@@ -76,12 +79,15 @@ class MatrixFreeResponse(ResponseOperator):
         scheduler: str | None = None,
         client: Any = None,
         progress: bool = False,
+        distance: Any = None,
     ) -> None:
         from rotmod.response.parallel import block_grid
 
         self.plan = make_plan(
-            instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors
+            instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors,
+            distance=distance,
         )
+        self.distance = self.plan.distance
         self.n_det, self.n_time, self.n_sky = self.plan.shape
         self.dtype = self.plan.dtype
         self.instrument = self.plan.instrument
@@ -168,5 +174,5 @@ class MatrixFreeResponse(ResponseOperator):
         )
         return MaterialisedResponse(
             out, instrument=self.instrument, grid=self.grid, time_bins=self.time_bins,
-            model=self.model, energy=self.energy,
+            model=self.model, energy=self.energy, distance=self.distance,
         )

@@ -47,12 +47,16 @@ class ResponseOperator(ABC):
     time_bins: Any = None
     model: Any = None
     energy: float | None = None
+    #: Distance of the sources (cm) for a lab field; ``None``: at infinity.
+    distance: float | None = None
 
     def __repr__(self) -> str:
         model = self.model.name if hasattr(self.model, "name") else self.model
         extra = "" if model is None else f", model {model!r}"
         if self.energy is not None:
             extra += f", {self.energy:g} keV"
+        if self.distance is not None:
+            extra += f", sources at {self.distance:g} cm"
         return (
             f"<{type(self).__name__} {self.n_det} detectors x {self.n_time} time bins x "
             f"{self.n_sky} sky pixels, {np.dtype(self.dtype).name}{extra}>"
@@ -139,7 +143,8 @@ class ResponseOperator(ABC):
         Keys: ``instrument`` (:meth:`Instrument.to_dict`), ``grid`` (:meth:`SkyGrid.to_dict`),
         ``time_bins`` (:meth:`TimeBinning.to_dict`), ``model`` (``ProfileModel.describe()``),
         ``energy`` (keV or ``None``), ``dtype``, ``shape`` ``[n_det, n_time, n_sky]`` and
-        ``rotmod_version``; unknown entries are ``None``.
+        ``rotmod_version``; unknown entries are ``None``.  A response for sources at a finite
+        distance adds ``distance`` (cm).
         """
         import rotmod
 
@@ -156,4 +161,6 @@ class ResponseOperator(ABC):
             "dtype": np.dtype(self.dtype).name,
             "shape": [int(self.n_det), int(self.n_time), int(self.n_sky)],
             "rotmod_version": rotmod.__version__,
+            # Only when finite, so that responses at infinity describe themselves as before.
+            **({} if self.distance is None else {"distance": float(self.distance)}),
         }

@@ -42,7 +42,7 @@ from numba import literally, njit, prange
 from numba.extending import overload
 
 from rotmod._validate import as_int, as_scalar
-from rotmod.errors import ParameterError
+from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.limits import check_memory
 from rotmod.profiles.base import ProjectedGeometry, get_model
 from rotmod.response._plan import check_response_inputs
@@ -423,6 +423,15 @@ class RadonResponse(ResponseOperator):
         inst, tb, e, dt = check_response_inputs(
             instrument, grid, time_bins, energy, dtype=dtype, detectors=detectors
         )
+        if not inst.is_ideal:
+            # The factorisation needs one mask function shared by every detector and angle
+            # (docs/physics.md, section 2b): a tilted axis, a finite mask, an irregular pattern
+            # or thick detectors make the table depend on the detector and the angle.
+            raise ModelValidityError(
+                "instrument: the Radon response describes the ideal instrument, but this one "
+                f"is as built ({', '.join(inst.as_built_features())}); use operator='matrix' "
+                "or a MatrixFreeResponse with the 'exact' model"
+            )
         tol = as_scalar(tolerance, "tolerance", lo=0.0, lo_open=True, hi=0.1)
         self.instrument, self.grid, self.time_bins, self.energy = inst, grid, tb, e
         self.model = get_model("exact")

@@ -100,6 +100,7 @@ def check_response_matches(
     time_bins: Any = None,
     model: Any = None,
     energy: Any = None,
+    distance: Any = None,
 ) -> None:
     """Refuse a stored response computed for something else than the given inputs.
 
@@ -124,6 +125,9 @@ def check_response_matches(
     if energy is not None:
         e = float(getattr(energy, "to_value", lambda _u: energy)("keV"))
         _compare("energy", metadata.get("energy"), e)
+    if distance is not None:
+        d = float(getattr(distance, "to_value", lambda _u: distance)("cm"))
+        _compare("distance", metadata.get("distance"), None if np.isinf(d) else d)
 
 
 def _read_meta(group: Any, path: Path) -> dict[str, Any]:
@@ -152,7 +156,7 @@ def _restore(meta: dict[str, Any]) -> dict[str, Any]:
     from rotmod.response.binning import TimeBinning
     from rotmod.sky import grid_from_dict
 
-    out: dict[str, Any] = {"energy": meta.get("energy")}
+    out: dict[str, Any] = {"energy": meta.get("energy"), "distance": meta.get("distance")}
     out["instrument"] = None if meta.get("instrument") is None else Instrument.from_dict(
         meta["instrument"]
     )
@@ -209,7 +213,7 @@ class StoredResponse(ResponseOperator):
                 yield slice(t0, min(self.n_time, t0 + bt)), slice(n0, min(self.n_sky, n0 + bn))
 
     def _block(self, ts: slice, ns: slice) -> np.ndarray:
-        return read_checked(self.array, ts, ns, self.path)
+        return read_checked(self.array, ts, ns, self.path, self.meta.get("p_max", 1.0))
 
     def _forward(self, sky: np.ndarray) -> np.ndarray:
         x = np.asarray(sky, dtype=self.dtype)
@@ -241,15 +245,17 @@ class StoredResponse(ResponseOperator):
             time_bins=self.time_bins,
             model=self.model,
             energy=self.energy,
+            distance=self.distance,
         )
 
 
-def read_checked(array: Any, ts: slice, ns: slice, store: Path) -> np.ndarray:
+def read_checked(array: Any, ts: slice, ns: slice, store: Path, p_max: float = 1.0) -> np.ndarray:
     """Read ``P[:, ts, ns]`` and refuse what is not a profile value.
 
     Chunks carry a CRC-32C checksum (a flipped bit or a truncated chunk fails to decode);
-    a missing chunk reads as the NaN fill value; both, and any value outside [0, 1], are
-    an error naming the store and the chunk instead of numbers that look fine.
+    a missing chunk reads as the NaN fill value; both, and any value outside [0, p_max]
+    (1, or for thick detectors the bound :attr:`ResponsePlan.p_max` stored as ``p_max``),
+    are an error naming the store and the chunk instead of numbers that look fine.
 
     Raises
     ------
@@ -261,21 +267,22 @@ def read_checked(array: Any, ts: slice, ns: slice, store: Path) -> np.ndarray:
     except Exception as exc:  # zarr/numcodecs raise ValueError, RuntimeError, OSError...
         raise RotmodError(f"{where} cannot be read ({type(exc).__name__}: {exc}); the store "
                           "is damaged: rebuild it with write_response") from exc
-    bad = ~((blk >= 0) & (blk <= 1))  # also true for NaN
+    bad = ~((blk >= 0) & (blk <= p_max))  # also true for NaN
     if bad.any():
         v = blk[bad].ravel()[0]
-        what = "is missing (reads as NaN)" if np.isnan(v) else f"holds {v:g}, not in [0, 1]"
+        what = ("is missing (reads as NaN)" if np.isnan(v)
+                else f"holds {v:g}, not in [0, {p_max:g}]")
         raise RotmodError(f"{where} {what}; the store is damaged: rebuild it with "
                           "write_response")
     return blk
 
 
-def _verified(array: Any, blocks: list[Any], store: Path) -> list[int]:
+def _verified(array: Any, blocks: list[Any], store: Path, p_max: float = 1.0) -> list[int]:
     """Indices of ``blocks`` whose chunk reads back as valid profile values."""
     ok = []
     for i, ((t0, t1), (n0, n1)) in enumerate(blocks):
         try:
-            read_checked(array, slice(t0, t1), slice(n0, n1), store)
+            read_checked(array, slice(t0, t1), slice(n0, n1), store, p_max)
         except RotmodError:
             continue
         ok.append(i)
@@ -356,6 +363,7 @@ def write_response(
     client: Any = None,
     progress: bool = False,
     on_chunk: Callable[[int, int], None] | None = None,
+    distance: Any = None,
 ) -> StoredResponse:
     """Compute a response chunk by chunk straight into a zarr store (atomic, resumable).
 
@@ -363,7 +371,7 @@ def write_response(
     ----------
     path : str or Path
         Store directory to create.
-    instrument, grid, time_bins, model, energy, dtype, detectors
+    instrument, grid, time_bins, model, energy, dtype, detectors, distance
         As :func:`rotmod.response.build_response`.
     chunks : (int, int), optional
         ``(time bins, sky pixels)`` per chunk (every chunk holds all detectors); default
@@ -396,7 +404,8 @@ def write_response(
 
     path = _as_path(path)
     _check_target(path, overwrite)
-    plan = make_plan(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors)
+    plan = make_plan(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors,
+                     distance=distance)
     meta = {
         "instrument": plan.instrument.to_dict(),
         "grid": grid.to_dict(),
@@ -408,6 +417,11 @@ def write_response(
         "rotmod_version": rotmod.__version__,
         "format_version": FORMAT_VERSION,
     }
+    # Only for the instrument as built, so that other stores are described as before.
+    if plan.distance is not None:
+        meta["distance"] = plan.distance
+    if plan.p_max != 1.0:
+        meta["p_max"] = plan.p_max
     partial = path.with_name(path.name + _PARTIAL)
     if chunks is None:
         chunks = _default_chunks(plan.shape, plan.dtype.itemsize)
@@ -426,8 +440,9 @@ def _write_locked(path: Path, partial: Path, plan: Any, meta: dict[str, Any],
     if partial.exists():
         g = zarr.open_group(str(partial), mode="r+")
         old = _read_meta(g, partial)
-        for key in ("instrument", "grid", "time_bins", "model", "energy", "dtype", "shape"):
-            _compare(key, old.get(key), meta[key])
+        for key in ("instrument", "grid", "time_bins", "model", "energy", "dtype", "shape",
+                    "distance"):
+            _compare(key, old.get(key), meta.get(key))
         arr = g["P"]
         chunks = tuple(arr.chunks[1:])
         (partial / _DONE).mkdir(exist_ok=True)
@@ -437,7 +452,8 @@ def _write_locked(path: Path, partial: Path, plan: Any, meta: dict[str, Any],
     blocks = block_grid(plan.shape, chunks)
     marked = {int(f.name) for f in (partial / _DONE).iterdir() if f.name.isdigit()}
     # A marker says a chunk was written, not that it is still whole: read those back.
-    done = marked & set(_verified(arr, blocks, partial)) if marked else set()
+    p_max = meta.get("p_max", 1.0)
+    done = marked & set(_verified(arr, blocks, partial, p_max)) if marked else set()
     if marked - done:
         log.warning("%s: %d chunk(s) marked done are missing or damaged; recomputing them",
                     partial, len(marked - done))
@@ -455,14 +471,14 @@ def _write_locked(path: Path, partial: Path, plan: Any, meta: dict[str, Any],
         n_done += 1
         if on_chunk is not None:
             on_chunk(n_done, len(blocks))
-    _check_complete(arr, blocks, partial)
+    _check_complete(arr, blocks, partial, p_max)
     _finalise(partial, path, overwrite)
     return open_response(path)
 
 
-def _check_complete(arr: Any, blocks: list[Any], store: Path) -> None:
+def _check_complete(arr: Any, blocks: list[Any], store: Path, p_max: float = 1.0) -> None:
     """Every chunk must read back valid before the store may be marked complete."""
-    bad = sorted(set(range(len(blocks))) - set(_verified(arr, blocks, store)))
+    bad = sorted(set(range(len(blocks))) - set(_verified(arr, blocks, store, p_max)))
     if bad:
         raise RotmodError(f"response store {str(store)!r}: {len(bad)} chunk(s) did not read "
                           f"back valid after writing (first: {blocks[bad[0]]}); not marked "
@@ -571,13 +587,14 @@ def open_response(
     time_bins: Any = None,
     model: Any = None,
     energy: Any = None,
+    distance: Any = None,
 ) -> ResponseOperator:
     """Open a finished response store lazily, checking it against the given inputs.
 
     Parameters
     ----------
     path : str or Path
-    instrument, grid, time_bins, model, energy : optional
+    instrument, grid, time_bins, model, energy, distance : optional
         What the caller will use the response with; each one given must equal the stored
         one (see :func:`check_response_matches`).
 
@@ -613,7 +630,8 @@ def open_response(
     if not attrs_ok:
         raise ParameterError(f"path {str(p)!r} is an unfinished response store")
     check_response_matches(
-        meta, instrument=instrument, grid=grid, time_bins=time_bins, model=model, energy=energy
+        meta, instrument=instrument, grid=grid, time_bins=time_bins, model=model, energy=energy,
+        distance=distance,
     )
     operator = meta.get("operator") or {}
     if operator.get("kind") == "radon":

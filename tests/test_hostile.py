@@ -286,3 +286,5 @@ def test_binary_instrument_files_and_absurd_heights(capsys, tmp_path) -> None:
     assert code == 2 and "Traceback" not in err and "is not a text file" in err, err
     with pytest.raises(ParameterError, match=r"mask\.height must be <= 1e9 slat periods"):
         Mask(4.0, 4.0, 2.0, 1e12, "lead")
+    with pytest.raises(ParameterError, match=r"mask\.axis_offset_y must be within 1e9 slat"):
+        Mask(4.0, 4.0, 2.0, 100.0, "lead", axis_offset_y=-1e30)

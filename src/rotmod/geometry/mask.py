@@ -159,7 +159,14 @@ class Mask:
                 )
             object.__setattr__(self, "slat_edges", tuple(float(v) for v in e))
         for name in ("axis_offset_x", "axis_offset_y"):
-            object.__setattr__(self, name, as_scalar(getattr(self, name), f"mask.{name}", u.cm))
+            off = as_scalar(getattr(self, name), f"mask.{name}", u.cm)
+            if abs(off) > 1e9 * (a + b):
+                # As for the height: the slat phase would lose its precision.
+                raise ParameterError(
+                    f"mask.{name} must be within 1e9 slat periods (a + b = {a + b:g} cm) of "
+                    f"the array's centre, got {off:g} cm; check the unit (cm)"
+                )
+            object.__setattr__(self, name, off)
         for name in ("tilt_x", "tilt_y"):
             t = as_angle_scalar(getattr(self, name), f"mask.{name}", lo=-10.0, hi=10.0)
             object.__setattr__(self, name, t * u.rad)

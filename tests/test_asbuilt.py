@@ -68,6 +68,16 @@ def test_ideal_limits_equal_todays_exact_model():
     assert np.abs(exact.profile(tilt, th, ph, xi) - P0).max() < 1e-12
 
 
+def _in_slats(E, p, lo, hi):
+    """Length of ``[lo, hi]`` inside the slats ``[E[2i], E[2i+1]] + k p`` (explicit overlaps,
+    for the brute-force references below)."""
+    total = 0.0
+    for k in range(math.floor((lo - E[0]) / p) - 1, math.floor((hi - E[0]) / p) + 2):
+        for a, b in zip(E[0::2] + k * p, E[1::2] + k * p, strict=True):
+            total += max(0.0, min(hi, b) - max(lo, a))
+    return total
+
+
 def _brute_force(inst, theta, phi, xi):
     """Profile of one detector by adaptive quadrature over the disc of the bottom-crossing
     coordinate, with the transmission from explicit interval overlaps (no tilt, no offset)."""
@@ -81,15 +91,8 @@ def _brute_force(inst, theta, phi, xi):
     uc = X * math.cos(x) - Y * math.sin(x)
     tau = mu * h / math.cos(t)
 
-    def in_slats(lo, hi):
-        total = 0.0
-        for k in range(math.floor((lo - E[0]) / p) - 1, math.floor((hi - E[0]) / p) + 2):
-            for a, b in zip(E[0::2] + k * p, E[1::2] + k * p, strict=True):
-                total += max(0.0, min(hi, b) - max(lo, a))
-        return total
-
     def T(uu):
-        return math.exp(-tau * in_slats(min(uu, uu + s), max(uu, uu + s)) / abs(s))
+        return math.exp(-tau * _in_slats(E, p, min(uu, uu + s), max(uu, uu + s)) / abs(s))
 
     pts = sorted({uc - R, uc + R, *[e + k * p + d for e in E for k in range(-30, 31)
                                      for d in (0.0, -s) if abs(e + k * p + d - uc) < R]})
@@ -224,18 +227,11 @@ def _brute_force_at(inst, theta, phi, xi, D):
     c, s = math.cos(x), math.sin(x)
     Su = S[0] * c - S[1] * s
 
-    def in_slats(lo, hi):
-        total = 0.0
-        for k in range(math.floor((lo - E[0]) / p) - 1, math.floor((hi - E[0]) / p) + 2):
-            for a, b in zip(E[0::2] + k * p, E[1::2] + k * p, strict=True):
-                total += max(0.0, min(hi, b) - max(lo, a))
-        return total
-
     def w_wT(qu, qv):
         qx, qy = qu * c + qv * s, -qu * s + qv * c
         r = math.sqrt((S[0] - qx) ** 2 + (S[1] - qy) ** 2 + S[2] ** 2)
         ub, ut = qu + (Su - qu) * L / S[2], qu + (Su - qu) * (L + h) / S[2]
-        f = in_slats(min(ub, ut), max(ub, ut)) / abs(ut - ub)
+        f = _in_slats(E, p, min(ub, ut), max(ub, ut)) / abs(ut - ub)
         return S[2] / r**3, S[2] / r**3 * math.exp(-mu * h * r / S[2] * f)
 
     uc, vc = cx * c - cy * s, cx * s + cy * c
@@ -368,16 +364,9 @@ def _brute_force_thick(inst, theta, phi, xi, energy):
     d = (math.sin(t) * math.cos(ph), math.sin(t) * math.sin(ph), math.cos(t))
     slope = math.tan(t) * math.cos(ph + x)  # du/dz of the rays
 
-    def in_slats(lo, hi):
-        total = 0.0
-        for k in range(math.floor((lo - E[0]) / p) - 1, math.floor((hi - E[0]) / p) + 2):
-            for a, b in zip(E[0::2] + k * p, E[1::2] + k * p, strict=True):
-                total += max(0.0, min(hi, b) - max(lo, a))
-        return total
-
     def T(qu):
         ub = qu + L * slope
-        f = in_slats(min(ub, ub + h * slope), max(ub, ub + h * slope)) / abs(h * slope)
+        f = _in_slats(E, p, min(ub, ub + h * slope), max(ub, ub + h * slope)) / abs(h * slope)
         return math.exp(-mu * h / math.cos(t) * f)
 
     def eps(qx, qy):

@@ -136,15 +136,7 @@ class DetectorArray:
             raise ParameterError(
                 "detectors.material is not set: flat detectors count every photon"
             )
-        if self.material.mass_attenuation is not None:
-            return float(self.material.mass_attenuation * self.material.density)
-        if energy is None:
-            raise ParameterError(
-                "energy is required: the detectors' attenuation comes from the material "
-                f"database ({self.material.name})"
-            )
-        e = as_scalar(energy, "energy", u.keV, lo=0.0, lo_open=True)
-        return float(self.material.linear_attenuation(e))
+        return self.material.coefficient(energy, "the detectors'")
 
     def with_positions(self, positions: Any) -> DetectorArray:
         """The same detectors (diameter, thickness, material) at other ``positions``."""

@@ -293,14 +293,7 @@ class Mask:
         e = None if energy is None else as_scalar(energy, "energy", u.keV, lo=0.0, lo_open=True)
         if self.mu is not None:
             return float(self.mu)
-        if self.material.mass_attenuation is not None:
-            return float(self.material.mass_attenuation * self.material.density)
-        if e is None:
-            raise ParameterError(
-                "energy is required: mask.mu is not set, so the attenuation comes from the "
-                f"material database ({self.material.name})"
-            )
-        return float(self.material.linear_attenuation(e))
+        return self.material.coefficient(e, "the mask's", hint=", or set mask.mu")
 
     def slat_fraction(self, u0: np.ndarray) -> np.ndarray:
         """1 where mask coordinate ``u0`` lies in a slat, 0 in a gap (edges count as slat)."""

@@ -30,7 +30,7 @@ import astropy.units as u
 import numpy as np
 
 from rotmod._validate import as_array, as_scalar
-from rotmod.errors import MaterialError
+from rotmod.errors import MaterialError, ParameterError
 
 __all__ = ["DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "Material", "mass_attenuation"]
 
@@ -220,3 +220,29 @@ class Material:
     def linear_attenuation(self, energy: Any) -> np.ndarray:
         """Linear attenuation coefficient ``mu = sigma * rho`` (1/cm) at ``energy`` (keV)."""
         return self.mass_attenuation_at(energy) * self.density
+
+    def coefficient(self, energy: Any, whose: str, hint: str = "") -> float:
+        """``mu`` (1/cm) at one energy (keV): the fixed coefficient when the material has one
+        (``energy`` may then be None), else the database's.
+
+        Parameters
+        ----------
+        energy : float, Quantity or None
+        whose, hint : str
+            Whose attenuation it is (``"the detectors'"``) and what else the user could do,
+            for the error message.
+
+        Raises
+        ------
+        ParameterError
+            No fixed coefficient and no energy.
+        """
+        if self.mass_attenuation is not None:
+            return float(self.mass_attenuation * self.density)
+        if energy is None:
+            raise ParameterError(
+                f"energy is required: {whose} attenuation comes from the material database "
+                f"({self.name}){hint}"
+            )
+        return float(self.linear_attenuation(as_scalar(energy, "energy", u.keV, lo=0.0,
+                                                       lo_open=True)))

@@ -400,28 +400,31 @@ def _exponent_change(x1, x2, prm, e0, W, cum, p):
 
 
 @njit(cache=True)
-def _flat_lost(prm, norm_only, e0, W, cum, p):
-    """``∫∫ w (1 - T)`` over a flat face (or ``∫∫ w`` with ``norm_only``): walk the pieces of
-    ``x in [-R, R]`` between the breakpoints of the bottom (``u_b = e``) and top
-    (``u_t = e``) crossings; pieces whose rays stay in a gap (``T = 1``) add nothing."""
-    R = prm[_R]
-    if norm_only:
-        return _outer_quad(-R, R, -R, R, 1, prm, e0, W, cum, p)
+def _lost_pieces(x1, x2, c, cells, vals, prm, e0, W, cum, p):
+    """``∫ (1 - T)``-weighted integrand over ``[x1, x2]``: walk the pieces between the
+    breakpoints where the bottom (``u_b = e``) or top (``u_t = e``) crossing meets a slat
+    edge; pieces whose rays stay in a gap (``T = 1``) add nothing.  ``c < 0``: a flat face
+    (:func:`_outer_quad` over the chord ``[-R, R]``); else cell ``c`` of a thick detector
+    (:func:`_cell_quad`)."""
     ub0 = prm[_UB]
     gb = prm[_GB]
     ut0 = prm[_UT]
     gt = prm[_GT]
-    ja = _first_edge_above(ub0 - gb * R, e0, W, p)
+    R = prm[_R]
+    ja = _first_edge_above(ub0 + gb * x1, e0, W, p)
     xa = (_edge(ja, e0, W, p) - ub0) / gb
-    jb = _first_edge_above(ut0 - gt * R, e0, W, p)
+    jb = _first_edge_above(ut0 + gt * x1, e0, W, p)
     xb = (_edge(jb, e0, W, p) - ut0) / gt
-    cur = -R
+    cur = x1
     total = 0.0
-    while cur < R:
-        nxt = min(xa, xb, R)
+    while cur < x2:
+        nxt = min(xa, xb, x2)
         if nxt > cur:
             if _fraction_at(0.5 * (cur + nxt), prm, e0, W, cum, p) > 0.0:
-                total += _outer_quad(cur, nxt, -R, R, 0, prm, e0, W, cum, p)
+                if c < 0:
+                    total += _outer_quad(cur, nxt, -R, R, 0, prm, e0, W, cum, p)
+                else:
+                    total += _cell_quad(cur, nxt, c, cells, vals, True, prm, e0, W, cum, p)
             cur = nxt
         if xa <= cur:
             ja += 1
@@ -430,6 +433,20 @@ def _flat_lost(prm, norm_only, e0, W, cum, p):
             jb += 1
             xb = (_edge(jb, e0, W, p) - ut0) / gt
     return total
+
+
+#: Placeholders for the cell arguments of :func:`_lost_pieces` on a flat face.
+_NO_CELLS = np.zeros((0, 7))
+_NO_VALS = np.zeros((0, 3, 1))
+
+
+@njit(cache=True)
+def _flat_lost(prm, norm_only, e0, W, cum, p):
+    """``∫∫ w (1 - T)`` over a flat face (or ``∫∫ w`` with ``norm_only``)."""
+    R = prm[_R]
+    if norm_only:
+        return _outer_quad(-R, R, -R, R, 1, prm, e0, W, cum, p)
+    return _lost_pieces(-R, R, -1, _NO_CELLS, _NO_VALS, prm, e0, W, cum, p)
 
 
 # A thick detector's chord integrals are interpolated on cells: Chebyshev points (second
@@ -652,36 +669,12 @@ _NO_W = np.zeros(2)
 
 @njit(cache=True)
 def _thick_lost(prm, cells, vals, e0, W, cum, p):
-    """``∫∫ w ε (1 - T)`` over a thick detector's shadow: on each cell, walk the breakpoints
-    where the bottom or top crossing meets a slat edge; pieces whose rays stay in a gap add
-    nothing."""
+    """``∫∫ w ε (1 - T)`` over a thick detector's shadow, cell by cell."""
     if prm[_MU] == 0.0:
         return 0.0
-    ub0 = prm[_UB]
-    gb = prm[_GB]
-    ut0 = prm[_UT]
-    gt = prm[_GT]
     lost = 0.0
     for c in range(cells.shape[0]):
-        cx1 = cells[c, 5]
-        cx2 = cells[c, 6]
-        ja = _first_edge_above(ub0 + gb * cx1, e0, W, p)
-        xa = (_edge(ja, e0, W, p) - ub0) / gb
-        jb = _first_edge_above(ut0 + gt * cx1, e0, W, p)
-        xb = (_edge(jb, e0, W, p) - ut0) / gt
-        cur = cx1
-        while cur < cx2:
-            nxt = min(xa, xb, cx2)
-            if nxt > cur:
-                if _fraction_at(0.5 * (cur + nxt), prm, e0, W, cum, p) > 0.0:
-                    lost += _cell_quad(cur, nxt, c, cells, vals, True, prm, e0, W, cum, p)
-                cur = nxt
-            if xa <= cur:
-                ja += 1
-                xa = (_edge(ja, e0, W, p) - ub0) / gb
-            if xb <= cur:
-                jb += 1
-                xb = (_edge(jb, e0, W, p) - ut0) / gt
+        lost += _lost_pieces(cells[c, 5], cells[c, 6], c, cells, vals, prm, e0, W, cum, p)
     return lost
 
 

@@ -12,7 +12,7 @@ from conftest import rad
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import PAPER_SIGMA_662
 from rotmod.profiles import get_model, project
-from rotmod.profiles.exact import _clip_integral, exact_point
+from rotmod.profiles._exact_kernels import _clip_integral, exact_point
 
 #: Exponent beyond which the reference drops the transmission (< 2e-19).
 _REF_CUT = 43.0

@@ -34,7 +34,7 @@ unchanged.  Everything else comes here, by the same 1-D reduction:
   ``P = (∫∫ w ε - ∫∫ w ε (1 - T)) / ∫∫_face w`` over the detector's shadow; the
   mask-independent chord integrals are interpolated per cell (:func:`_thick_cells`), the
   mask's factor integrated against them (:func:`_thick_lost`).
-* **Slat patterns** given as edge lists take :func:`~rotmod.profiles.exact.point_edges`.
+* **Slat patterns** given as edge lists take :func:`~rotmod.profiles._exact_kernels.point_edges`.
 * **A finite outline** (disc or square centred on the axis, turning with the mask): rays
   that cross the slab outside it are not attenuated.  The model handles the detectors
   whose rays are all inside or all outside the outline across the whole slab (the 1-D
@@ -51,8 +51,7 @@ from numba import njit, prange
 
 from rotmod.errors import ModelValidityError
 from rotmod.geometry import Instrument
-from rotmod.profiles.base import ProjectedGeometry
-from rotmod.profiles.exact import (
+from rotmod.profiles._exact_kernels import (
     _G12_W,
     _G12_X,
     _S_ZERO,
@@ -63,6 +62,7 @@ from rotmod.profiles.exact import (
     n_subpieces,
     point_edges,
 )
+from rotmod.profiles.base import ProjectedGeometry
 
 __all__ = ["evaluate"]
 
@@ -350,7 +350,7 @@ def _outer_quad(x1, x2, s_lo, s_hi, mode, prm, e0, W, cum, p):
     As the ideal kernel's clip integrals: ``y`` the distance from the nearer end in
     half-segments (so the far end is ``y = 2``, like a disc's far edge), 12-point
     Gauss–Legendre in ``t = sqrt(y)`` on the sub-pieces of
-    :func:`~rotmod.profiles.exact.n_subpieces` (exponent change <= 2.5, far end outside
+    :func:`~rotmod.profiles._exact_kernels.n_subpieces` (exponent change <= 2.5, far end outside
     every Bernstein ellipse of parameter 2)."""
     half = 0.5 * (s_hi - s_lo)
     mid = s_lo + half

@@ -25,7 +25,7 @@ terms of the paper's sum are exactly zero.  Then, with ``F0`` the clamped disc-s
     P = 1 - Σ_m (G0_m - G1_m)
 
 ``F1``'s integral is the exact model's clip integral
-(:func:`rotmod.profiles.exact._clip_integral`: Gauss–Legendre in the square root of the
+(:func:`rotmod.profiles._exact_kernels._clip_integral`: Gauss–Legendre in the square root of the
 distance from the disc's edge, where the disc's density is smooth), which stays accurate
 and finite as ``s -> 0``.  Where the code departs from the printed equations and
 why is listed in ``docs/physics.md``.
@@ -41,8 +41,8 @@ from numba import njit, prange
 
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import Instrument
+from rotmod.profiles._exact_kernels import _clip_integral
 from rotmod.profiles.base import ProfileModel, ProjectedGeometry, register_model
-from rotmod.profiles.exact import _clip_integral
 from rotmod.profiles.standard import _FAST, segment_fraction
 
 __all__ = ["AdvancedModel", "advanced_point", "clip_transmission"]

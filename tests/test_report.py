@@ -63,7 +63,7 @@ def test_bad_size_and_steps(tmp_path) -> None:
 def test_page_names_its_provenance_and_files_follow_the_umask(tiny) -> None:
     # The fixture ran under the suite's umask; files must be readable like any other file
     # the user creates (tempfile's 0600 would make them private).
-    from rotmod._atomic import current_umask
+    from rotmod.io.atomic import current_umask
 
     want_file = 0o666 & ~current_umask()
     want_dir = 0o777 & ~current_umask()

@@ -14,7 +14,7 @@ import rotmod
 
 SRC = Path(rotmod.__file__).resolve().parent
 #: Top-level private helper modules meant to be shared by every package.
-SHARED_PRIVATE = {"rotmod._validate", "rotmod._atomic", "rotmod._deps"}
+SHARED_PRIVATE = {"rotmod._validate", "rotmod._deps"}
 
 
 def _modules() -> dict[str, Path]:

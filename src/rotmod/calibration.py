@@ -37,7 +37,7 @@ import numpy as np
 from rotmod._validate import as_angle_scalar, as_array, as_int, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument, disc_flux
-from rotmod.response.binning import TimeBinning
+from rotmod.binning import TimeBinning
 
 __all__ = [
     "PARAMETERS",

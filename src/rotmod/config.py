@@ -78,7 +78,7 @@ from typing import TYPE_CHECKING, Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._atomic import write_text
+from rotmod.io.atomic import write_text
 from rotmod._deps import optional_import
 from rotmod.errors import ParameterError, RotmodError
 

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rotmod._atomic import atomic_path
+from rotmod.io.atomic import atomic_path
 from rotmod.errors import RotmodError
 
 if TYPE_CHECKING:

@@ -32,7 +32,7 @@ import astropy.units as u
 import numpy as np
 from astropy.io import fits
 
-from rotmod._atomic import atomic_path
+from rotmod.io.atomic import atomic_path
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.events import EventList, FoldedProfiles
 from rotmod.geometry import Instrument

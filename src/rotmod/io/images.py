@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from rotmod._atomic import atomic_path
+from rotmod.io.atomic import atomic_path
 from rotmod.errors import ParameterError
 from rotmod.io._fits import header_text, open_verified
 

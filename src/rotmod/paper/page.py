@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from rotmod._atomic import write_text
+from rotmod.io.atomic import write_text
 
 __all__ = ["fmt_time", "write_report"]
 

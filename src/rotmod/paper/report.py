@@ -39,7 +39,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._atomic import atomic_dir, atomic_path, write_text
+from rotmod.io.atomic import atomic_dir, atomic_path, write_text
 from rotmod.errors import ParameterError
 from rotmod.materials import PAPER_SIGMA_662
 from rotmod.paper.claims import (

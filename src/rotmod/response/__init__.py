@@ -14,7 +14,7 @@ Reconstruction sees only :class:`ResponseOperator` (``forward``, ``adjoint``,
 ``sensitivity``, ``as_linear_operator``).
 """
 
-from rotmod.response.binning import TimeBinning
+from rotmod.binning import TimeBinning
 from rotmod.response.materialised import MaterialisedResponse, build_response
 from rotmod.response.matrix_free import MatrixFreeResponse
 from rotmod.response.operator import ResponseOperator

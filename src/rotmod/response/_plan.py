@@ -25,7 +25,7 @@ from rotmod.profiles.base import (
     get_model,
     project,
 )
-from rotmod.response.binning import TimeBinning
+from rotmod.binning import TimeBinning
 
 __all__ = ["ResponsePlan", "check_response_inputs", "make_plan"]
 

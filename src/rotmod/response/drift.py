@@ -27,7 +27,7 @@ from rotmod.errors import ParameterError
 from rotmod.events.folding import exposure_per_bin
 from rotmod.limits import check_memory
 from rotmod.profiles.base import DEFAULT_MODEL, get_model
-from rotmod.response.binning import TimeBinning
+from rotmod.binning import TimeBinning
 from rotmod.response.materialised import MaterialisedResponse, build_response
 from rotmod.response.operator import ResponseOperator
 from rotmod.response.radon import RadonResponse

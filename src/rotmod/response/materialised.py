@@ -104,7 +104,7 @@ def _set_metadata(
     """Check the shapes implied by the metadata against the operator and attach it."""
     from rotmod.geometry import Instrument
     from rotmod.profiles.base import get_model
-    from rotmod.response.binning import TimeBinning
+    from rotmod.binning import TimeBinning
 
     if instrument is not None:
         if not isinstance(instrument, Instrument):

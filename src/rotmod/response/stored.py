@@ -112,7 +112,7 @@ def check_response_matches(
         Naming the first field that differs (e.g. ``instrument.mask.thickness``).
     """
     from rotmod.profiles.base import get_model
-    from rotmod.response.binning import TimeBinning
+    from rotmod.binning import TimeBinning
 
     if instrument is not None:
         _compare("instrument", metadata.get("instrument"), instrument.to_dict())
@@ -153,7 +153,7 @@ def _restore(meta: dict[str, Any]) -> dict[str, Any]:
     """Rebuild instrument, grid, time binning and model objects from stored metadata."""
     from rotmod.geometry import Instrument
     from rotmod.profiles.base import MODELS, get_model
-    from rotmod.response.binning import TimeBinning
+    from rotmod.binning import TimeBinning
     from rotmod.sky import grid_from_dict
 
     out: dict[str, Any] = {"energy": meta.get("energy"), "distance": meta.get("distance")}

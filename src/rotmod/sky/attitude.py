@@ -185,7 +185,7 @@ class AttitudeTable:
         """Write the samples as an ECSV table (time in s, angles in deg), atomically."""
         from astropy.table import Table
 
-        from rotmod._atomic import atomic_path
+        from rotmod.io.atomic import atomic_path
 
         t = Table({"time": self.time * u.s, "ra": self.ra * u.deg, "dec": self.dec * u.deg,
                    "roll": self.roll * u.deg})

@@ -17,7 +17,28 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_dir", "atomic_path", "current_umask", "write_text"]
+from rotmod.errors import ParameterError
+
+__all__ = ["atomic_dir", "atomic_path", "check_overwrite", "current_umask", "write_text"]
+
+
+def check_overwrite(path: str | os.PathLike, overwrite: bool, *, parameter: str = "path") -> Path:
+    """The one overwrite policy: refuse an existing ``path`` unless ``overwrite`` is true.
+
+    Every writer calls this before it starts work, so the refusal costs nothing and the
+    message is the same everywhere.
+
+    Raises
+    ------
+    ParameterError
+        ``path`` exists and ``overwrite`` is false.
+    """
+    p = Path(path)
+    if not overwrite and (p.exists() or p.is_symlink()):
+        raise ParameterError(
+            f"{parameter} {str(p)!r} already exists; pass overwrite=True to replace it"
+        )
+    return p
 
 
 def current_umask() -> int:

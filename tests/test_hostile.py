@@ -95,11 +95,15 @@ def test_folded_files_with_no_rows_or_gapped_bins_are_refused(files, tmp_path) -
 def test_folded_bins_must_be_the_response_bins(files) -> None:
     f = read_folded(files / "f.fits")
     resp = build_response(f.instrument, SkyGrid((3, 3), 1.0), TimeBinning(12), energy=122)
-    # Same number of bins, other edges (a quarter-bin shift): refused, not fitted silently.
-    shifted = FoldedProfiles(f.counts, f.exposure, f.bin_edges + 7.5 * f.bin_edges.unit / 57.3,
-                             f.instrument, f.gti)
+    # Same number of bins, other edges (a quarter-bin shift): refused, not fitted silently
+    # (folded profiles hold a TimeBinning, so such edges are refused as they are converted).
+    with pytest.raises(ParameterError, match="must be 12 equal bins over a turn"):
+        TimeBinning.from_edges(f.bin_edges + 7.5 * f.bin_edges.unit / 57.3)
+    # Other bins than the response's: refused, not fitted silently.
+    other = FoldedProfiles(np.ones((f.counts.shape[0], 24), int), np.ones(24), 24,
+                           f.instrument, f.gti)
     with pytest.raises(ParameterError, match="not the response's time bins"):
-        reconstruct(resp, shifted, "mlem", max_iter=2)
+        reconstruct(resp, other, "mlem", max_iter=2)
     reconstruct(resp, f, "mlem", max_iter=2)  # the file's own bins are accepted
 
 
@@ -121,7 +125,7 @@ def test_a_flipped_bit_in_a_file_rotmod_wrote_is_detected(files, tmp_path) -> No
         (["response", "--fov", "100", "--pixel", "0.0001", "-o", "{d}/big.zarr"],
          "projecting 1000000000000 sky pixels"),
         (["profile", "-s", "6,0", "--angles", "1e12", "-o", "{d}/big.csv"], "1000000000000"),
-        (["fold", "{d}/ev.fits", "-n", "1e12", "-o", "{d}/big.fits"], "1000000000000 bins"),
+        (["fold", "{d}/ev.fits", "-n", "1e12", "-o", "{d}/big.fits"], "1000000000000 time bins"),
         (["response", "-n", "1e12", "-o", "{d}/big2.zarr"], "1000000000000 time bins"),
         (["simulate", "-s", "3,0,10", "-t", "1e12", "-o", "{d}/big.fits"],
          "an observation of 1e\\+12 s"),
@@ -248,7 +252,8 @@ def test_a_response_for_another_energy_is_refused(capsys, files, tmp_path) -> No
     # The events are a 122 keV line; the folded file records the band; a 662 keV response
     # (other slat attenuation) used to run silently on them.
     f = read_folded(files / "f.fits")
-    assert f.meta["e_min"] == pytest.approx(122.0) and f.meta["e_max"] == pytest.approx(122.0)
+    band = f.energy_band
+    assert band.e_min == pytest.approx(122.0) and band.e_max == pytest.approx(122.0)
     grid = SkyGrid((3, 3), 1.0)
     with pytest.raises(ParameterError, match=r"made for 662 keV.*band 122-122 keV"):
         reconstruct(build_response(f.instrument, grid, 12, energy=662), f, max_iter=2)
@@ -258,7 +263,7 @@ def test_a_response_for_another_energy_is_refused(capsys, files, tmp_path) -> No
                      "-o", tmp_path / "w.fits")
     assert code == 0, err
     w = read_folded(tmp_path / "w.fits")
-    assert (w.meta["e_min"], w.meta["e_max"]) == pytest.approx((100.0, 140.0))
+    assert (w.energy_band.e_min, w.energy_band.e_max) == pytest.approx((100.0, 140.0))
     assert w.counts.sum() == f.counts.sum()  # the line lies inside the window
     code, err = _cli(capsys, "fold", files / "ev.fits", "--band", "140:100",
                      "-o", tmp_path / "x.fits")

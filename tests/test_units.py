@@ -18,6 +18,7 @@ import pytest
 from astropy.coordinates import SkyCoord
 
 from rotmod import DetectorArray, Instrument
+from rotmod.binning import TimeBinning
 from rotmod.cli._common import parse_source, to_number
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, FoldedProfiles, exposure_per_bin
@@ -68,8 +69,9 @@ def _folded(arg: str) -> Callable[[Any], Any]:
 
     def call(value: Any) -> Any:
         kw = {**base, arg: value}
-        f = FoldedProfiles(np.ones((2, 3), int), np.full(3, 20.0), kw["bin_edges"], INST,
-                           [[0.0, 60.0]], kw["start_phase"])
+        f = FoldedProfiles(np.ones((2, 3), int), np.full(3, 20.0),
+                           TimeBinning.from_edges(kw["bin_edges"]), INST, [[0.0, 60.0]],
+                           kw["start_phase"])
         return np.append(f.bin_edges.to_value(u.rad), f.start_phase.to_value(u.rad))
 
     return call
@@ -95,7 +97,7 @@ CASES: list[tuple[str, Callable[[Any], Any], float | list[float]]] = [
     ("EventList start_phase", _event_phase, 40.0),
     ("exposure_per_bin start_phase",
      lambda v: exposure_per_bin([[0.0, 45.0]], 6, 60.0, v), 50.0),
-    ("FoldedProfiles bin_edges", _folded("bin_edges"), [0.0, 120.0, 240.0, 360.0]),
+    ("TimeBinning.from_edges edges", _folded("bin_edges"), [0.0, 120.0, 240.0, 360.0]),
     ("FoldedProfiles start_phase", _folded("start_phase"), 30.0),
     ("SkyGrid pixel_size", lambda v: _plain(SkyGrid((3, 3), v).directions()[0]), 0.5),
     ("SkyGrid.square fov", lambda v: SkyGrid.square(v, 0.5).shape, 4.0),

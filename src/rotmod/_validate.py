@@ -13,11 +13,12 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
+from rotmod.conventions import ENERGY_UNIT
 from rotmod.errors import ParameterError
 
 __all__ = [
-    "as_angle", "as_angle_scalar", "as_array", "as_distance", "as_float_dtype", "as_int",
-    "as_scalar",
+    "as_angle", "as_angle_scalar", "as_array", "as_distance", "as_energy", "as_energy_scalar",
+    "as_float_dtype", "as_int", "as_scalar",
 ]
 
 
@@ -162,6 +163,35 @@ def as_angle(value: Any, name: str, **bounds: Any) -> np.ndarray:
 def as_angle_scalar(value: Any, name: str, **bounds: Any) -> float:
     """Scalar form of :func:`as_angle`; returns a Python float in radians."""
     return float(np.deg2rad(as_scalar(value, name, u.deg, **bounds)))
+
+
+def as_energy(value: Any, name: str, **bounds: Any) -> np.ndarray:
+    """Convert a public energy (Quantity, or plain number in **keV**) to keV.
+
+    Every energy a user passes is an `~astropy.units.Quantity` or a plain number in keV
+    (:data:`rotmod.conventions.ENERGY_UNIT`).  The value must be finite and, by default,
+    ``> 0 keV`` (a photon energy); ``lo``, ``hi``, ``lo_open``, ``hi_open`` (keV) and ``ndim``
+    are those of :func:`as_array` and replace the default bound (``lo=None``: no lower bound).
+
+    Returns
+    -------
+    numpy.ndarray
+        The energy in keV.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``name``, the value received and the rule (e.g. ``energy must be > 0 keV, got
+        -1 keV``).
+    """
+    bounds = {"lo": 0.0, "lo_open": True, **bounds}
+    return as_array(value, name, ENERGY_UNIT, **bounds)
+
+
+def as_energy_scalar(value: Any, name: str, **bounds: Any) -> float:
+    """Scalar form of :func:`as_energy`; returns a Python float in keV."""
+    bounds = {"lo": 0.0, "lo_open": True, **bounds}
+    return as_scalar(value, name, ENERGY_UNIT, **bounds)
 
 
 def as_distance(value: Any, n: int, name: str = "distance") -> np.ndarray:

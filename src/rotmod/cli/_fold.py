@@ -40,6 +40,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
+    from rotmod.binning import EnergyBand, TimeBinning
     from rotmod.events import fold
     from rotmod.io import read_events, write_folded
 
@@ -53,12 +54,12 @@ def run(args: argparse.Namespace) -> int:
     if args.band is not None:
         lo, sep, hi = args.band.partition(":")  # each a plain number (keV) or with a unit
         try:
-            band = (to_number(lo, "keV"), to_number(hi, "keV")) if sep else None
+            band = EnergyBand(to_number(lo, "keV"), to_number(hi, "keV")) if sep else None
         except argparse.ArgumentTypeError as exc:
             raise UserError(f"--band: must be LO:HI (keV), got {args.band!r}: {exc}") from None
         if band is None:
             raise UserError(f"--band: must be LO:HI (keV), got {args.band!r}")
-    folded = fold(events, args.bins, band)
+    folded = fold(events, TimeBinning(args.bins), band)
     write_folded(folded, out, overwrite=args.overwrite)
     say(f"rotmod: wrote {out} ({folded.counts.shape[0]} detector(s) x {folded.n_bins} bins, "
         f"{int(folded.counts.sum())} counts)")

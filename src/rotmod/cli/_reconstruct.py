@@ -91,8 +91,9 @@ def run(args: argparse.Namespace) -> int:
         if bar is not None:
             kw["callbacks"] = [lambda _solver, _it: bool(bar.update(1))]
         res = reconstruct(response, folded, args.method, seed=args.seed, **kw)
-    info = {k: folded.meta[k] for k in ("telescop", "instrume", "obs_id", "e_min", "e_max")
-            if k in folded.meta}
+    info = {k: folded.meta[k] for k in ("telescop", "instrume", "obs_id") if k in folded.meta}
+    if folded.energy_band is not None:
+        info.update(folded.energy_band.to_dict())  # E_MIN, E_MAX of the image file
     write_image(out, res, overwrite=args.overwrite,
                 meta={"folded": str(src), "response": str(rsp), **info,
                       "exposure": float(np.sum(folded.gti[:, 1] - folded.gti[:, 0]))})

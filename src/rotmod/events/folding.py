@@ -10,6 +10,9 @@ angle zero), the time a good interval ``[t1, t2]`` spends in bin ``k`` is
 ``G_k(q) = floor(q) / N + clip(frac(q) - k / N, 0, 1 / N)``, the measure of the set of
 ``q' in [0, q)`` whose fractional part lies in the bin.  This handles a non-integer number of
 rotations, a start phase and any gaps.
+
+The bins are a :class:`~rotmod.binning.TimeBinning` (the one binning shared with responses)
+and the energy window an :class:`~rotmod.binning.EnergyBand`.
 """
 
 from __future__ import annotations
@@ -21,7 +24,8 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle, as_angle_scalar, as_array, as_int, as_scalar
+from rotmod._validate import as_angle_scalar, as_scalar
+from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
 from rotmod.events.gti import check_gti
@@ -33,16 +37,12 @@ __all__ = ["FoldedProfiles", "exposure_per_bin", "fold"]
 log = logging.getLogger(__name__)
 
 
-def _check_n_bins(n_bins: Any) -> int:
-    return as_int(n_bins, "n_bins", 1)
-
-
 def _rotations(t: np.ndarray, period: float, start_phase: float) -> np.ndarray:
     return np.asarray(t, dtype=float) / period + start_phase / (2 * np.pi)
 
 
 def exposure_per_bin(
-    gti: Any, n_bins: int, rotation_period: Any, start_phase: Any = 0.0
+    gti: Any, time_bins: TimeBinning | int, rotation_period: Any, start_phase: Any = 0.0
 ) -> np.ndarray:
     """Seconds of good time with the mask angle in each of ``n_bins`` phase bins.
 
@@ -50,8 +50,8 @@ def exposure_per_bin(
     ----------
     gti : array_like or Quantity, shape (k, 2)
         Good-time intervals (s).
-    n_bins : int
-        Number of mask-angle bins over one turn (>= 1).
+    time_bins : TimeBinning or int
+        The mask-angle bins (an integer: that many equal bins over one turn, >= 1).
     rotation_period : float or Quantity
         Mask rotation period (s), > 0.
     start_phase : float or Quantity
@@ -63,7 +63,7 @@ def exposure_per_bin(
         Exposure (s); sums to the total good time.
     """
     g = check_gti(gti)
-    n = _check_n_bins(n_bins)
+    n = TimeBinning.coerce(time_bins).n_bins
     T = as_scalar(rotation_period, "rotation_period", u.s, lo=0.0, lo_open=True)
     phase = as_angle_scalar(start_phase, "start_phase")
     check_memory(8.0 * 4 * g.shape[0] * n, f"the exposure of {g.shape[0]} good-time intervals "
@@ -79,6 +79,10 @@ def exposure_per_bin(
     return T * np.sum(measure(q[:, 1]) - measure(q[:, 0]), axis=0)
 
 
+#: Keys of :meth:`EnergyBand.to_dict`: the band has one owner, ``FoldedProfiles.energy_band``.
+_BAND_KEYS = ("e_min", "e_max")
+
+
 @dataclass(frozen=True, eq=False)
 class FoldedProfiles:
     """Count profiles per detector folded modulo the rotation period.
@@ -89,23 +93,31 @@ class FoldedProfiles:
         Events per detector and mask-angle bin.
     exposure : ndarray, shape (n_bins,) or (n_det, n_bins)
         Good time (s) in each bin (common to all detectors unless 2-D).
-    bin_edges : Quantity, shape (n_bins + 1,)
-        Mask-angle bin edges, ``0 .. 360 deg`` (deg if plain numbers; held in rad).
+    time_bins : TimeBinning
+        The mask-angle bins (an integer ``n`` is taken as ``TimeBinning(n)``); edges of
+        another origin become one with :meth:`TimeBinning.from_edges`.
     instrument : Instrument
     gti : ndarray, shape (k, 2)
         Good-time intervals of the folded data (s).
     start_phase : float or Quantity
         Mask angle at ``t = 0`` (deg if a plain number; held as a Quantity in rad).
+    energy_band : EnergyBand, optional
+        Energies of the folded events (a ``(lo, hi)`` pair in keV is accepted); a
+        reconstruction checks the response's energy against it.  ``None``: not known (no
+        check).
     meta : dict
-        Free-form metadata (e.g. the event file's header values).
+        Free-form metadata (e.g. the event file's header values).  ``e_min``/``e_max`` keys
+        are dropped: the band of the counts is :attr:`energy_band` (an event file's
+        ``E_MIN``/``E_MAX`` describe the event file, not the folded window).
     """
 
     counts: np.ndarray
     exposure: np.ndarray
-    bin_edges: Any
+    time_bins: TimeBinning
     instrument: Instrument
     gti: np.ndarray
     start_phase: Any = 0.0
+    energy_band: EnergyBand | None = None
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -127,10 +139,10 @@ class FoldedProfiles:
             )
         if np.any(ex < 0) or not np.all(np.isfinite(ex)):
             raise ParameterError("exposure must be finite and >= 0 s")
-        edges = as_angle(self.bin_edges, "bin_edges")
-        if edges.shape != (n_bins + 1,) or np.any(np.diff(edges) <= 0):
+        tb = TimeBinning.coerce(self.time_bins)
+        if tb.n_bins != n_bins:
             raise ParameterError(
-                f"bin_edges must be {n_bins + 1} increasing mask angles, got shape {edges.shape}"
+                f"time_bins must have one bin per counts column ({n_bins}), got {tb.n_bins}"
             )
         for name, val in (
             ("counts", c.astype(np.int64)), ("exposure", ex),
@@ -139,12 +151,13 @@ class FoldedProfiles:
             val = np.array(val)
             val.flags.writeable = False
             object.__setattr__(self, name, val)
-        edges = np.array(edges) * u.rad
-        edges.flags.writeable = False
-        object.__setattr__(self, "bin_edges", edges)
+        object.__setattr__(self, "time_bins", tb)
         phase = as_angle_scalar(self.start_phase, "start_phase") * u.rad
         object.__setattr__(self, "start_phase", phase)
-        object.__setattr__(self, "meta", dict(self.meta))
+        if self.energy_band is not None:
+            object.__setattr__(self, "energy_band", EnergyBand.coerce(self.energy_band))
+        meta = {k: v for k, v in self.meta.items() if k not in _BAND_KEYS}
+        object.__setattr__(self, "meta", meta)
 
     def __repr__(self) -> str:
         good = float(np.sum(self.gti[:, 1] - self.gti[:, 0]))
@@ -156,12 +169,17 @@ class FoldedProfiles:
     @property
     def n_bins(self) -> int:
         """Number of mask-angle bins."""
-        return self.counts.shape[1]
+        return self.time_bins.n_bins
 
     @property
-    def bin_centers(self) -> np.ndarray:
+    def bin_edges(self) -> u.Quantity:
+        """Mask-angle bin edges ``(n_bins + 1,)``, 0 to 360 deg (Quantity, rad)."""
+        return self.time_bins.edges() * u.rad
+
+    @property
+    def bin_centers(self) -> u.Quantity:
         """Mask angle at the centre of each bin (Quantity, rad)."""
-        return 0.5 * (self.bin_edges[1:] + self.bin_edges[:-1])
+        return self.time_bins.angles() * u.rad
 
     @property
     def rate(self) -> np.ndarray:
@@ -180,29 +198,33 @@ class FoldedProfiles:
             return np.where(self.exposure > 0, np.sqrt(self.counts) / self.exposure, np.nan)
 
 
-def fold(events: EventList, n_bins: int, energy_band: Any = None) -> FoldedProfiles:
-    """Fold an event list modulo the rotation period into ``n_bins`` mask-angle bins.
+def fold(
+    events: EventList, time_bins: TimeBinning | int, energy_band: Any = None
+) -> FoldedProfiles:
+    """Fold an event list modulo the rotation period into mask-angle bins.
 
     Parameters
     ----------
     events : EventList
         The events; those outside every good-time interval are dropped (and logged).
-    n_bins : int
-        Number of mask-angle bins over one turn (>= 1).
-    energy_band : (float, float) or Quantity, optional
+    time_bins : TimeBinning or int
+        The mask-angle bins, e.g. a response's ``time_bins`` (an integer: that many equal
+        bins over one turn, >= 1).
+    energy_band : EnergyBand or (float, float) or Quantity, optional
         Keep only events with ``lo <= ENERGY <= hi`` (keV), e.g. a photopeak window.  Default:
-        every event, and the band recorded is the range of their energies.
+        every event, and the band recorded is the range of their energies (``None`` when no
+        event lies in a good-time interval).
 
     Returns
     -------
     FoldedProfiles
-        Counts per detector and bin, with the exact exposure per bin; ``meta["e_min"]`` and
-        ``meta["e_max"]`` (keV) record the energy band, which a reconstruction checks against
-        the response's energy.
+        Counts per detector and bin, with the exact exposure per bin; ``energy_band`` records
+        the band, which a reconstruction checks against the response's energy.
     """
     if not isinstance(events, EventList):
         raise ParameterError(f"events must be an EventList, got {type(events)}")
-    n = _check_n_bins(n_bins)
+    tb = TimeBinning.coerce(time_bins)
+    n = tb.n_bins
     inst = events.instrument
     check_memory(8.0 * (len(inst.detectors) + 4) * n, f"folding into {n} bins",
                  hint="fold into fewer bins")
@@ -215,25 +237,16 @@ def fold(events: EventList, n_bins: int, energy_band: Any = None) -> FoldedProfi
         log.warning("fold: dropped %d events outside the good-time intervals", int((~good).sum()))
     e = np.asarray(events.energy, dtype=float)
     if energy_band is None:
-        band = (float(e[good].min()), float(e[good].max())) if good.any() else (0.0, 0.0)
+        band = EnergyBand(float(e[good].min()), float(e[good].max())) if good.any() else None
     else:
-        band = tuple(as_array(energy_band, "energy_band", u.keV, lo=0.0, ndim=1).tolist())
-        if len(band) != 2 or not band[0] < band[1]:
-            raise ParameterError(f"energy_band must be (lo, hi) keV with lo < hi, got {band}")
-        # float32 energies: compare at float32 precision so a line at the edge is kept.
-        good &= (e >= np.float32(band[0])) & (e <= np.float32(band[1]))
+        band = EnergyBand.coerce(energy_band)
+        good &= band.contains(e)
     phase = events.start_phase.to_value(u.rad)
     q = _rotations(t[good], inst.rotation_period, phase)
     k = np.minimum(((q - np.floor(q)) * n).astype(np.int64), n - 1)
     n_det = len(inst.detectors)
     counts = np.bincount(events.detector[good].astype(np.int64) * n + k, minlength=n_det * n)
-    exposure = exposure_per_bin(g, n, inst.rotation_period, events.start_phase)
+    exposure = exposure_per_bin(g, tb, inst.rotation_period, events.start_phase)
     return FoldedProfiles(
-        counts.reshape(n_det, n),
-        exposure,
-        np.linspace(0.0, 2 * np.pi, n + 1) * u.rad,
-        inst,
-        g,
-        events.start_phase,
-        {**events.meta, "e_min": band[0], "e_max": band[1]},
+        counts.reshape(n_det, n), exposure, tb, inst, g, events.start_phase, band, events.meta
     )

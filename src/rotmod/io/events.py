@@ -32,11 +32,12 @@ import astropy.units as u
 import numpy as np
 from astropy.io import fits
 
-from rotmod.io.atomic import atomic_path
+from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.events import EventList, FoldedProfiles
 from rotmod.geometry import Instrument
 from rotmod.io._fits import header_text, open_verified
+from rotmod.io.atomic import atomic_path
 
 __all__ = ["read_events", "read_folded", "write_events", "write_folded"]
 
@@ -473,6 +474,10 @@ def write_folded(
 ) -> Path:
     """Write folded count profiles as a FITS ``PROFILES`` table.
 
+    The bins are written as ``BIN_LO``/``BIN_HI`` columns (deg, for other tools) and as the
+    :class:`~rotmod.binning.TimeBinning` (``NBINS``, ``BINMODE``, ``BINNSUB``); the energy
+    band as ``E_MIN``/``E_MAX`` (keV).
+
     Parameters
     ----------
     folded : FoldedProfiles
@@ -488,6 +493,7 @@ def write_folded(
         raise ParameterError(f"folded must be FoldedProfiles, got {type(folded)}")
     n_det = folded.counts.shape[0]
     ex = folded.exposure
+    tb = folded.time_bins
     cols = [
         fits.Column("BIN_LO", "D", unit="deg", array=folded.bin_edges[:-1].to_value(u.deg)),
         fits.Column("BIN_HI", "D", unit="deg", array=folded.bin_edges[1:].to_value(u.deg)),
@@ -502,11 +508,15 @@ def write_folded(
     h["HDUCLAS1"] = ("PROFILES", "count profiles folded on the mask rotation")
     t0 = float(folded.gti[0, 0])
     t1 = float(folded.gti[-1, 1])
-    for k, v, c in _time_cards(folded.meta, t0, t1, folded.gti):
+    # The band goes where the time cards have always written it (E_MIN, E_MAX in keV).
+    band = {} if folded.energy_band is None else folded.energy_band.to_dict()
+    for k, v, c in _time_cards({**folded.meta, **band}, t0, t1, folded.gti):
         h[k] = (v, c)
     for k, v, c in _instrument_cards(folded.instrument, folded.start_phase):
         h[k] = (v, c)
-    h["NBINS"] = (folded.n_bins, "mask-angle bins over one turn")
+    h["NBINS"] = (tb.n_bins, "mask-angle bins over one turn")
+    h["BINMODE"] = (tb.mode, "response of a bin: center or average")
+    h["BINNSUB"] = (tb.n_sub, "sub-samples per bin in average mode")
     hdus = [
         fits.PrimaryHDU(), tab, _gti_hdu(folded.gti, dict(h)), _detectors_hdu(folded.instrument)
     ]
@@ -516,10 +526,16 @@ def write_folded(
 def read_folded(path: str | os.PathLike) -> FoldedProfiles:
     """Read folded count profiles written by :func:`write_folded`.
 
+    The bins are rebuilt as a :class:`~rotmod.binning.TimeBinning` from the ``BIN_LO``/
+    ``BIN_HI`` edges (:meth:`~rotmod.binning.TimeBinning.from_edges`, which allows the
+    round-off of the degree columns), with ``BINMODE``/``BINNSUB`` when present (files
+    written before them: a centre-mode binning).
+
     Raises
     ------
     RotmodError
-        Missing file, not FITS, or missing extensions, columns or keywords.
+        Missing file, not FITS, missing extensions, columns or keywords, or bins that are
+        not equal bins over one turn.
     """
     with _open(path) as hdul:
         tab = _ext(hdul, "PROFILES", path)
@@ -532,15 +548,24 @@ def read_folded(path: str | os.PathLike) -> FoldedProfiles:
         if lo.size > 1 and not np.array_equal(lo[1:], hi[:-1]):
             raise RotmodError(f"file {str(path)!r}: PROFILES bins are not contiguous "
                               "(BIN_LO of each row must equal BIN_HI of the row before)")
+        if "NBINS" in h and _num(h, "NBINS", path, "PROFILES") != lo.size:
+            raise RotmodError(f"file {str(path)!r}: PROFILES keyword NBINS = {h['NBINS']!r} "
+                              f"must equal the number of rows ({lo.size})")
         counts = np.atleast_2d(_col(tab.data, "COUNTS", path, "PROFILES").T).astype(np.int64)
         if counts.shape[1] != lo.size:
             counts = counts.reshape(-1, lo.size)
         ex = _col(tab.data, "EXPOSURE", path, "PROFILES").astype(float)
         ex = ex.T if ex.ndim == 2 else ex
+        meta = _meta_from(h, path)
         try:
+            tb = TimeBinning.from_edges(
+                np.append(lo, hi[-1]) * u.deg, str(h.get("BINMODE", "center")),
+                int(_num(h, "BINNSUB", path, "PROFILES")) if "BINNSUB" in h else 4,
+            )
+            band = EnergyBand.from_dict(meta) if "e_min" in meta and "e_max" in meta else None
             return FoldedProfiles(
-                counts, ex, np.append(lo, hi[-1]) * u.deg, inst, _read_gti(hdul, path),
-                _key_in(h, "ROT_PHA0", 0.0, u.deg, path) * u.deg, _meta_from(h, path),
+                counts, ex, tb, inst, _read_gti(hdul, path),
+                _key_in(h, "ROT_PHA0", 0.0, u.deg, path) * u.deg, band, meta,
             )
         except RotmodError as exc:
             raise RotmodError(f"file {str(path)!r}: invalid folded profiles: {exc}") from exc

@@ -179,11 +179,11 @@ def _check_energy_match(response: ResponseOperator, data: Any) -> None:
     A response is computed at one energy (the slats' attenuation there); applying it to
     counts from another band fits the wrong instrument without any warning otherwise.
     """
-    meta = getattr(data, "meta", None) or {}
+    band = getattr(data, "energy_band", None)
     e = getattr(response, "energy", None)
-    if e is None or "e_min" not in meta or "e_max" not in meta:
+    if e is None or band is None:
         return
-    lo, hi = float(meta["e_min"]), float(meta["e_max"])
+    lo, hi = band.e_min, band.e_max
     # Energies are stored as float32 in event files: 1e-6 relative is their precision.
     if not lo * (1 - 1e-6) <= e <= hi * (1 + 1e-6):
         raise ParameterError(
@@ -196,21 +196,19 @@ def _check_energy_match(response: ResponseOperator, data: Any) -> None:
 def _check_bins_match(response: ResponseOperator, data: Any) -> None:
     """Refuse folded counts whose mask-angle bins are not the response's time bins.
 
-    Counting the bins is not enough: a file from elsewhere may hold as many bins with other
-    edges (non-uniform, or shifted), and the fit would then run silently on mismatched data.
+    Both are :class:`~rotmod.binning.TimeBinning`, so the bins either are the same or not:
+    no tolerance on edges (folded files are checked to hold equal bins when read).
     """
-    edges = getattr(data, "bin_edges", None)
-    tb = getattr(response, "time_bins", None)
-    if edges is None or tb is None:
+    got = getattr(data, "time_bins", None)
+    want = getattr(response, "time_bins", None)
+    if got is None or want is None:
         return
-    want = tb.edges()
-    got = np.asarray(edges.to_value("rad") if hasattr(edges, "to_value") else edges)
-    # Edges written to FITS in degrees and read back differ by a few ulp (1e-12 rad).
-    if got.shape != want.shape or not np.allclose(got, want, rtol=0, atol=1e-9):
+    # The response's mode and n_sub say how it averages a bin, not which bins it has.
+    if not want.same_bins(got):
         raise ParameterError(
-            f"data: the folded bins ({got.size - 1} bins, edges {np.degrees(got[:3]).round(6)}"
-            f"... deg) are not the response's time bins ({tb.n_bins} equal bins over a turn); "
-            "fold the events with the response's binning"
+            f"data: the folded bins ({got.n_bins} equal bins over a turn) are not the "
+            f"response's time bins ({want.n_bins} equal bins over a turn); fold the events "
+            "with the response's binning"
         )
 
 

@@ -8,7 +8,8 @@ from scipy import stats
 
 from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, get_model
-from rotmod.events import EventList, exposure_per_bin, fold
+from rotmod.binning import EnergyBand, TimeBinning
+from rotmod.events import EventList, FoldedProfiles, exposure_per_bin, fold
 from rotmod.montecarlo import PointSources, simulate_observation
 
 
@@ -69,6 +70,32 @@ def test_fold_counts_hand_made():
     np.testing.assert_allclose(f.rate, [[2 / 30, 2 / 30, 0, 1 / 30]])
     np.testing.assert_allclose(f.error, [[np.sqrt(2) / 30, np.sqrt(2) / 30, 0, 1 / 30]])
     np.testing.assert_allclose(f.bin_edges.to_value("rad"), np.linspace(0, 2 * np.pi, 5))
+
+
+def test_fold_takes_the_response_binning_and_a_typed_band():
+    inst = _inst()
+    t = np.array([1.0, 16.0, 17.0, 50.0, 61.0])
+    e = np.array([100.0, 122.0, 122.0, 662.0, 145.0])
+    ev = EventList(t, np.zeros(5, int), e, inst, [[0.0, 120.0]], meta={"e_min": 1.0})
+    tb = TimeBinning(4, "average", 8)
+    f = fold(ev, tb, EnergyBand(100.0, 145.0))
+    assert f.time_bins is tb and f.n_bins == 4
+    assert f.counts.tolist() == [[2, 2, 0, 0]]  # 662 keV is outside the band
+    # The same fold with an int and a (lo, hi) pair; the band has one owner, energy_band
+    # (an event file's E_MIN/E_MAX in its meta do not describe the folded window).
+    g = fold(ev, 4, (100.0, 145.0))
+    assert np.array_equal(g.counts, f.counts) and np.array_equal(g.exposure, f.exposure)
+    assert g.time_bins == TimeBinning(4) and g.energy_band == f.energy_band
+    assert "e_min" not in f.meta and "e_min" not in g.meta
+    # Without a window the band recorded is the range of the energies folded.
+    assert fold(ev, 4).energy_band == EnergyBand(100.0, 662.0)
+    np.testing.assert_array_equal(f.bin_edges.to_value("rad"), tb.edges())
+    np.testing.assert_array_equal(f.bin_centers.to_value("rad"), tb.angles())
+    with pytest.raises(ParameterError, match="time_bins must be a TimeBinning or an integer"):
+        fold(ev, 4.0)
+    with pytest.raises(ParameterError, match=r"time_bins must have one bin per counts column "
+                                             r"\(4\), got 5"):
+        FoldedProfiles(f.counts, f.exposure, 5, inst, f.gti)
 
 
 def test_folded_simulation_recovers_model():

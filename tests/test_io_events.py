@@ -8,6 +8,7 @@ from astropy.io import fits
 
 from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, RotmodError
+from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.events import fold
 from rotmod.io import read_events, read_folded, write_events, write_folded
 from rotmod.montecarlo import PointSources, simulate_observation
@@ -56,6 +57,62 @@ def test_folded_round_trip(events, tmp_path):
                                rtol=1e-15)
     assert back.start_phase.to_value("rad") == pytest.approx(f.start_phase.to_value("rad"),
                                                              rel=1e-15)
+
+
+def test_folded_file_holds_the_binning_and_the_band(events, tmp_path):
+    f = fold(events, TimeBinning(24, "average", 6), EnergyBand(600.0, 700.0))
+    p = write_folded(f, tmp_path / "f.fits")
+    back = read_folded(p)
+    assert back.time_bins == f.time_bins and back.energy_band == f.energy_band
+    h = fits.getheader(p, "PROFILES")
+    assert (h["NBINS"], h["BINMODE"], h["BINNSUB"]) == (24, "average", 6)
+    assert (h["E_MIN"], h["E_MAX"]) == (600.0, 700.0)
+    # The edge columns stay for other tools: 15 deg bins.
+    np.testing.assert_allclose(fits.getdata(p, "PROFILES")["BIN_HI"][:2], [15.0, 30.0])
+
+
+def _as_old_file(src, dst, edit=None):
+    """``src`` as the folding code before TimeBinning wrote it: no BINMODE/BINNSUB, the
+    edges from linspace, E_MIN/E_MAX the only record of the band."""
+    with fits.open(src) as h:
+        tab = h["PROFILES"]
+        del tab.header["BINMODE"], tab.header["BINNSUB"]
+        n = tab.header["NBINS"]
+        deg = np.degrees(np.linspace(0.0, 2 * np.pi, n + 1))
+        tab.data["BIN_LO"], tab.data["BIN_HI"] = deg[:-1], deg[1:]
+        if edit is not None:
+            edit(tab)
+        h.writeto(dst, checksum=True)
+    return dst
+
+
+def test_an_old_folded_file_reads(events, tmp_path):
+    f = fold(events, 24, (600.0, 700.0))
+    old = _as_old_file(write_folded(f, tmp_path / "f.fits"), tmp_path / "old.fits")
+    back = read_folded(old)
+    assert back.time_bins == TimeBinning(24) and back.energy_band == EnergyBand(600.0, 700.0)
+    assert np.array_equal(back.counts, f.counts) and np.array_equal(back.exposure, f.exposure)
+
+
+def test_folded_files_whose_bins_are_not_equal_bins_over_a_turn_are_refused(events, tmp_path):
+    p = write_folded(fold(events, 4), tmp_path / "f.fits")
+
+    def unequal(tab):
+        tab.data["BIN_HI"][0] = tab.data["BIN_LO"][1] = 80.0
+
+    def half_turn(tab):
+        tab.data["BIN_LO"] /= 2
+        tab.data["BIN_HI"] /= 2
+
+    def nbins(tab):
+        tab.header["NBINS"] = 5
+
+    for edit, match in ((unequal, "must be 4 equal bins over a turn"),
+                        (half_turn, "must be 4 equal bins over a turn"),
+                        (nbins, "NBINS = 5 must equal the number of rows \\(4\\)")):
+        bad = _as_old_file(p, tmp_path / f"{edit.__name__}.fits", edit)
+        with pytest.raises(RotmodError, match=match):
+            read_folded(bad)
 
 
 def test_opaque_mask_round_trip(events, tmp_path):

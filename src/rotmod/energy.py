@@ -21,10 +21,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_array, as_scalar
+from rotmod._validate import as_energy, as_energy_scalar, as_int, as_scalar
+from rotmod.errors import ParameterError
 
 __all__ = ["EnergyResolution", "PowerLaw"]
 
@@ -53,8 +53,8 @@ class EnergyResolution:
     def __post_init__(self) -> None:
         object.__setattr__(self, "fraction", as_scalar(self.fraction, "resolution.fraction",
                                                        lo=0.0, lo_open=True))
-        object.__setattr__(self, "reference", as_scalar(self.reference, "resolution.reference",
-                                                        u.keV, lo=0.0, lo_open=True))
+        object.__setattr__(self, "reference",
+                           as_energy_scalar(self.reference, "resolution.reference"))
         object.__setattr__(self, "index", as_scalar(self.index, "resolution.index"))
 
     @classmethod
@@ -64,12 +64,12 @@ class EnergyResolution:
 
     def fwhm(self, energy: Any) -> np.ndarray:
         """FWHM (keV) at ``energy`` (keV)."""
-        e = as_array(energy, "energy", u.keV, lo=0.0, lo_open=True)
+        e = as_energy(energy, "energy")
         return self.fraction * e * (e / self.reference) ** self.index
 
     def smear(self, energy: Any, rng: np.random.Generator) -> np.ndarray:
         """Measured energies (keV, float32) of photons of true ``energy`` (keV)."""
-        e = as_array(energy, "energy", u.keV, lo=0.0, lo_open=True)
+        e = as_energy(energy, "energy")
         measured = rng.normal(e, self.fwhm(e) / FWHM_PER_SIGMA)
         # A pulse height is positive; the tail below 0 is ~10 sigma away for any real detector.
         return np.maximum(measured, np.finfo(np.float32).tiny).astype(np.float32)
@@ -92,11 +92,9 @@ class PowerLaw:
     e_max: Any
 
     def __post_init__(self) -> None:
-        from rotmod.errors import ParameterError
-
         object.__setattr__(self, "index", as_scalar(self.index, "spectrum.index"))
-        lo = as_scalar(self.e_min, "spectrum.e_min", u.keV, lo=0.0, lo_open=True)
-        hi = as_scalar(self.e_max, "spectrum.e_max", u.keV, lo=0.0, lo_open=True)
+        lo = as_energy_scalar(self.e_min, "spectrum.e_min")
+        hi = as_energy_scalar(self.e_max, "spectrum.e_max")
         if not lo < hi:
             raise ParameterError(f"spectrum.e_min must be < e_max, got {lo:g} and {hi:g} keV")
         object.__setattr__(self, "e_min", lo)
@@ -110,8 +108,6 @@ class PowerLaw:
 
     def bands(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``n`` log-spaced bands: ``(lo, hi, photon fraction)`` each of shape (n,)."""
-        from rotmod._validate import as_int
-
         n = as_int(n, "n_bands", 1)
         edges = np.geomspace(self.e_min, self.e_max, n + 1)
         g = 1.0 - self.index

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_array, as_scalar
+from rotmod._validate import as_angle_scalar, as_array, as_energy, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.gti import check_gti
 from rotmod.geometry import Instrument
@@ -99,7 +99,9 @@ class EventList:
                 f"events.detector must lie in 0..{n_det - 1} (the instrument's detectors), "
                 f"got {bad}"
             )
-        e = as_array(self.energy, "events.energy", u.keV, ndim=1).astype(np.float32)
+        # Any finite energy is kept (no lower bound): events are selected by the energy
+        # window of a fold, not when they are read.
+        e = as_energy(self.energy, "events.energy", lo=None, ndim=1).astype(np.float32)
         if e.shape != (n,):
             raise ParameterError(f"events.energy must have shape ({n},), got {e.shape}")
         if n > 1 and np.any(np.diff(t) < 0):

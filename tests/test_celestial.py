@@ -12,10 +12,10 @@ from astropy.coordinates import SkyCoord
 from rotmod.config import load_instrument
 from rotmod.errors import ParameterError
 from rotmod.events import fold
-from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.montecarlo import simulate_observation
 from rotmod.reconstruction import reconstruct
 from rotmod.response import TimeBinning, build_response
-from rotmod.sky import Attitude, CelestialGrid, grid_from_dict
+from rotmod.sky import Attitude, CelestialGrid, PointSources, grid_from_dict
 
 
 def test_wcs_has_east_left_and_north_up() -> None:

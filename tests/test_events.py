@@ -9,7 +9,8 @@ from scipy import stats
 from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, get_model
 from rotmod.events import EventList, exposure_per_bin, fold
-from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.montecarlo import simulate_observation
+from rotmod.sky import PointSources
 
 
 def _inst(n_rings=0, T=60.0):

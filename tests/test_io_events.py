@@ -10,7 +10,8 @@ from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, RotmodError
 from rotmod.events import fold
 from rotmod.io import read_events, read_folded, write_events, write_folded
-from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.montecarlo import simulate_observation
+from rotmod.sky import PointSources
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray, Instrument
 from rotmod.io.images import read_image, write_image
 from rotmod.materials import PAPER_SIGMA_662
-from rotmod.plotting.images import plot_image
+from rotmod.plotting.images import IMAGE_DRAWERS, plot_image
 from rotmod.response import MatrixFreeResponse, TimeBinning, build_response
 from rotmod.sky import (
     GRID_KINDS,
@@ -261,3 +261,13 @@ def test_source_angles_invert_source_direction():
     np.testing.assert_allclose(th, theta, atol=1e-15)
     np.testing.assert_allclose(ph[1:], phi[1:], atol=1e-15)
     assert source_angles(2.0 * source_direction(theta, phi))[0] == pytest.approx(theta)
+
+
+def test_each_grid_kind_is_drawn_by_its_registered_drawer():
+    assert set(IMAGE_DRAWERS.names()) == {"instrument", "celestial"}
+    g = SkyGrid((3, 4), 0.5)
+    ax = plot_image(np.ones(g.shape), g, colorbar=False)
+    assert ax.get_xlabel() == "tangent-plane x (deg)"
+    ax = plot_image(np.ones((1, 5)), Ring(2.0, 5), colorbar=False)  # the default drawer
+    assert ax.get_xlabel() == "theta cos phi (deg)"
+    matplotlib.pyplot.close("all")

@@ -440,7 +440,8 @@ def test_response_layer_keeps_or_drops_the_half_turn():
 
 def test_event_files_keep_the_instrument_as_built(tmp_path):
     from rotmod.io import read_events, write_events
-    from rotmod.montecarlo import PointSources, simulate_observation
+    from rotmod.montecarlo import simulate_observation
+    from rotmod.sky import PointSources
 
     inst = _ideal()
     ev = simulate_observation(inst, PointSources([6.0], [30.0], rate=5.0), t_stop=20.0, seed=1)

@@ -12,10 +12,10 @@ from astropy.coordinates import SkyCoord
 from rotmod.config import load_instrument
 from rotmod.errors import ParameterError
 from rotmod.events import fold
-from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.montecarlo import simulate_observation
 from rotmod.reconstruction import reconstruct
 from rotmod.response import TimeBinning, build_response
-from rotmod.sky import Attitude, CelestialGrid, grid_from_dict
+from rotmod.sky import Attitude, CelestialGrid, PointSources, grid_from_dict
 
 
 def test_wcs_has_east_left_and_north_up() -> None:
@@ -261,7 +261,7 @@ def test_healpix_wide_field_images_and_equals_explicit_directions(tmp_path) -> N
 
     from rotmod.io.images import write_image
     from rotmod.response import MatrixFreeResponse
-    from rotmod.sky import HealpixGrid
+    from rotmod.sky import HealpixGrid, SkyGeometry
 
     att = Attitude(300.0, 40.0, -15.0)
     # A 45 deg cone (beyond the tangent grids' comfort) at nside 32 (1.8 deg pixels).
@@ -270,7 +270,7 @@ def test_healpix_wide_field_images_and_equals_explicit_directions(tmp_path) -> N
     inst = load_instrument("prototype")
     tb = TimeBinning(60)
 
-    class Explicit:  # the same pixel directions handed over as a plain list
+    class Explicit(SkyGeometry):  # the same pixel directions handed over as a plain list
         size, shape = grid.size, grid.shape
 
         @staticmethod
@@ -280,6 +280,10 @@ def test_healpix_wide_field_images_and_equals_explicit_directions(tmp_path) -> N
         @staticmethod
         def to_dict():
             return {"kind": "explicit"}
+
+        @classmethod
+        def from_dict(cls, d):
+            return cls()
 
     a = MatrixFreeResponse(inst, grid, tb, energy=122, dtype=np.float64)
     b = MatrixFreeResponse(inst, Explicit(), tb, energy=122, dtype=np.float64)

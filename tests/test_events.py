@@ -10,7 +10,8 @@ from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, get_model
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.events import EventList, FoldedProfiles, exposure_per_bin, fold
-from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.montecarlo import simulate_observation
+from rotmod.sky import PointSources
 
 
 def _inst(n_rings=0, T=60.0):

@@ -15,10 +15,10 @@ from rotmod.errors import ParameterError, RotmodError
 from rotmod.events import FoldedProfiles, fold
 from rotmod.io import read_folded, write_events, write_folded
 from rotmod.materials import PAPER_SIGMA_662
-from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.montecarlo import simulate_observation
 from rotmod.reconstruction import reconstruct
 from rotmod.response import TimeBinning, build_response, write_response
-from rotmod.sky import SkyGrid
+from rotmod.sky import PointSources, SkyGrid
 
 
 @pytest.fixture(scope="module")

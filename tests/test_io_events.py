@@ -11,7 +11,8 @@ from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, Ro
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.events import fold
 from rotmod.io import read_events, read_folded, write_events, write_folded
-from rotmod.montecarlo import PointSources, simulate_observation
+from rotmod.montecarlo import simulate_observation
+from rotmod.sky import PointSources
 
 
 @pytest.fixture(scope="module")

@@ -9,6 +9,7 @@ from rotmod import RotmodError
 from rotmod.io.images import read_image, write_image
 from rotmod.reconstruction import reconstruct
 from rotmod.response.operator import ResponseOperator
+from rotmod.sky import Attitude, HealpixGrid
 from rotmod.sky.grid import SkyGrid
 
 
@@ -63,3 +64,20 @@ def test_write_requires_grid(tmp_path) -> None:
         write_image(tmp_path / "x.fits", image=np.zeros((2, 2)))
     with pytest.raises(RotmodError, match="does not exist"):
         read_image(tmp_path / "missing.fits")
+
+
+def test_healpix_images_are_read_back_from_their_pixel_table(tmp_path) -> None:
+    grid = HealpixGrid(16, 300.0, 40.0, 12.0, Attitude(300.0, 40.0, -15.0), "ring")
+    rng = np.random.default_rng(3)
+    img, unc = rng.random(grid.shape), rng.random(grid.shape)
+    back = read_image(write_image(tmp_path / "hp.fits", image=img, grid=grid, uncertainty=unc))
+    np.testing.assert_array_equal(back.image, img)
+    np.testing.assert_array_equal(back.uncertainty, unc)
+    assert back.wcs is None and back.header["BUNIT"] == "ph s-1 pixel-1"
+    with pytest.raises(RotmodError, match="uncertainty must have the image's shape"):
+        write_image(tmp_path / "x.fits", image=img, grid=grid, uncertainty=unc[:, 1:])
+
+
+def test_write_requires_a_sky_geometry(tmp_path) -> None:
+    with pytest.raises(RotmodError, match="grid must be a sky grid"):
+        write_image(tmp_path / "x.fits", image=np.zeros((2, 2)), grid=object())

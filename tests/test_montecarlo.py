@@ -12,10 +12,11 @@ from scipy import stats
 
 from conftest import rad
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, get_model
-from rotmod.montecarlo import PointSources, chord_lengths, simulate_profiles
+from rotmod.montecarlo import chord_lengths, simulate_profiles
 from rotmod.montecarlo._rng import chunk_states, poisson, seed_sequence
 from rotmod.paper.validation import chi_square, get_scenario
 from rotmod.profiles import MODELS, ExactModel
+from rotmod.sky import PointSources
 
 SQ2 = np.sqrt(2.0)
 

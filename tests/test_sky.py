@@ -1,14 +1,36 @@
-"""Sky grids: presets, directions <-> tangent plane, and the WCS."""
+"""Sky grids: presets, directions <-> tangent plane, the WCS, and the SkyGeometry contract
+(a new grid kind is one subclass plus its registration)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import astropy.units as u
+import matplotlib
 import numpy as np
 import pytest
 from astropy.coordinates import SkyCoord
 
+import rotmod.montecarlo
+from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
-from rotmod.sky import SkyGrid
+from rotmod.geometry import DetectorArray, Instrument
+from rotmod.io.images import read_image, write_image
+from rotmod.materials import PAPER_SIGMA_662
+from rotmod.plotting.images import IMAGE_DRAWERS, plot_image
+from rotmod.response import MatrixFreeResponse, TimeBinning, build_response
+from rotmod.sky import (
+    GRID_KINDS,
+    CelestialGrid,
+    HealpixGrid,
+    PointSources,
+    SkyGeometry,
+    SkyGrid,
+    grid_from_dict,
+)
+
+matplotlib.use("Agg")
 
 
 def test_paper_preset():
@@ -146,3 +168,106 @@ def test_grids_stored_before_tangent_existed_are_tangent_at_the_axis():
     d = SkyGrid((4, 6), 0.25, center=(1.0, 2.0)).to_dict()
     del d["tangent"]
     assert SkyGrid.from_dict(d) == SkyGrid((4, 6), 0.25, center=(1.0, 2.0))
+
+
+@dataclass(frozen=True)
+class Ring(SkyGeometry):
+    """A new grid kind written here only: ``n`` pixels on a circle ``theta`` (deg) off axis."""
+
+    kind = "test-ring"
+    frame = "instrument"
+
+    theta: float
+    n: int
+
+    @property
+    def size(self) -> int:
+        return self.n
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (1, self.n)
+
+    def directions(self) -> tuple[u.Quantity, u.Quantity]:
+        phi = 2 * np.pi * np.arange(self.n) / self.n
+        return np.full(self.n, np.radians(self.theta)) * u.rad, phi * u.rad
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "theta": self.theta, "n": self.n}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Ring:
+        return cls(d["theta"], d["n"])
+
+
+GRID_KINDS.register(Ring.kind, Ring)
+
+
+def test_a_new_grid_kind_goes_everywhere_without_other_changes(tmp_path):
+    ring = Ring(3.0, 6)
+    # Metadata: to_dict -> grid_from_dict through the registry.
+    assert grid_from_dict(ring.to_dict()) == ring
+    # FITS: the default (pixel-table) form, read back in the grid's image shape.
+    rng = np.random.default_rng(2)
+    img, unc = rng.random(ring.shape), rng.random(ring.shape)
+    back = read_image(write_image(tmp_path / "ring.fits", image=img, grid=ring,
+                                  uncertainty=unc, meta={"exposure": 10.0}))
+    np.testing.assert_array_equal(back.image, img)
+    np.testing.assert_array_equal(back.uncertainty, unc)
+    assert back.wcs is None and back.header["EXPOSURE"] == 10.0
+    # A response: each pixel's column is that of a one-pixel instrument grid tangent at its
+    # direction (the same direction, up to the round trip through a unit vector).
+    base = Instrument.paper(sigma=PAPER_SIGMA_662)
+    inst = Instrument(base.mask, DetectorArray.hexagonal(3.8, rings=1))
+    tb = TimeBinning(24)
+    R = build_response(inst, ring, tb, dtype=np.float64).todense()
+    assert R.shape == (7, 24, 6)
+    np.testing.assert_allclose(MatrixFreeResponse(inst, ring, tb, dtype=np.float64)
+                               .forward(np.eye(6)[4]), R[:, :, 4], rtol=1e-12)
+    for k, phi in enumerate(ring.directions()[1].to_value(u.deg)):
+        one = build_response(inst, SkyGrid((1, 1), 0.1, tangent=(3.0, phi)), tb,
+                             dtype=np.float64).todense()
+        np.testing.assert_allclose(R[:, :, k], one[:, :, 0], rtol=1e-9, atol=1e-15)
+    # A plot: kinds without a drawer of their own are drawn at their directions.
+    ax = plot_image(img, ring, sources=([3.0], [60.0]), title="ring")
+    assert ax.get_title() == "ring"
+    matplotlib.pyplot.close("all")
+
+
+def test_every_grid_kind_is_registered_under_its_kind():
+    assert {"instrument", "celestial", "healpix"} <= set(GRID_KINDS.names())
+    for name, cls in GRID_KINDS.items():
+        assert cls.kind == name and issubclass(cls, SkyGeometry)
+    assert GRID_KINDS.get("celestial") is CelestialGrid
+    assert GRID_KINDS.get("healpix") is HealpixGrid
+    assert isinstance(SkyGrid.paper(), SkyGeometry)
+
+
+def test_grid_from_dict_defaults_to_the_instrument_grid_and_names_unknown_kinds():
+    g = SkyGrid((4, 6), 0.25, center=(1.0, 2.0))
+    assert "kind" not in g.to_dict() and grid_from_dict(g.to_dict()) == g
+    with pytest.raises(ParameterError, match=r"grid kind must be one of .*did you mean 'healpix'"):
+        grid_from_dict({"kind": "helpix"})
+
+
+def test_point_sources_are_sky_truth_and_still_importable_from_the_monte_carlo():
+    assert rotmod.montecarlo.PointSources is PointSources
+
+
+def test_source_angles_invert_source_direction():
+    theta = np.radians([0.0, 3.0, 45.0, 89.0, 120.0])
+    phi = np.radians([0.0, -170.0, 30.0, 179.0, -45.0])
+    th, ph = source_angles(source_direction(theta, phi))
+    np.testing.assert_allclose(th, theta, atol=1e-15)
+    np.testing.assert_allclose(ph[1:], phi[1:], atol=1e-15)
+    assert source_angles(2.0 * source_direction(theta, phi))[0] == pytest.approx(theta)
+
+
+def test_each_grid_kind_is_drawn_by_its_registered_drawer():
+    assert set(IMAGE_DRAWERS.names()) == {"instrument", "celestial"}
+    g = SkyGrid((3, 4), 0.5)
+    ax = plot_image(np.ones(g.shape), g, colorbar=False)
+    assert ax.get_xlabel() == "tangent-plane x (deg)"
+    ax = plot_image(np.ones((1, 5)), Ring(2.0, 5), colorbar=False)  # the default drawer
+    assert ax.get_xlabel() == "theta cos phi (deg)"
+    matplotlib.pyplot.close("all")

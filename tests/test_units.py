@@ -23,10 +23,10 @@ from rotmod.cli._common import parse_source, to_number
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, FoldedProfiles, exposure_per_bin
 from rotmod.materials import PAPER_SIGMA_662
-from rotmod.montecarlo import PointSources, chord_lengths, simulate_profiles
+from rotmod.montecarlo import chord_lengths, simulate_profiles
 from rotmod.profiles import get_model, project
 from rotmod.reconstruction.metrics import localization_errors
-from rotmod.sky import Attitude, SkyGrid
+from rotmod.sky import Attitude, PointSources, SkyGrid
 
 INST = Instrument(Instrument.paper(sigma=PAPER_SIGMA_662).mask,
                   DetectorArray([[0.0, 0.0], [4.2, -3.0]], 4.0))

@@ -63,6 +63,7 @@ __all__ = [
     "TIME_UNIT",
     "mask_coordinate",
     "shadow_shift",
+    "source_angles",
     "source_direction",
 ]
 
@@ -81,6 +82,17 @@ def source_direction(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
     phi = np.asarray(phi, dtype=float)
     st = np.sin(theta)
     return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=-1)
+
+
+def source_angles(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Zenith ``theta`` and azimuth ``phi`` (rad) of direction vectors: the inverse of
+    :func:`source_direction`.
+
+    ``direction`` has shape ``(..., 3)`` and need not be normalised; ``theta`` and ``phi`` have
+    shape ``direction.shape[:-1]``.
+    """
+    d = np.asarray(direction, dtype=float)
+    return np.arctan2(np.hypot(d[..., 0], d[..., 1]), d[..., 2]), np.arctan2(d[..., 1], d[..., 0])
 
 
 def mask_coordinate(x: np.ndarray, y: np.ndarray, xi: np.ndarray) -> np.ndarray:

@@ -51,7 +51,8 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from rotmod.io import write_events
-    from rotmod.montecarlo import PointSources, simulate_observation
+    from rotmod.montecarlo import simulate_observation
+    from rotmod.sky import PointSources
 
     out = check_output(args.output, args.overwrite)
     if not np.isfinite(args.exposure) or args.exposure <= 0:

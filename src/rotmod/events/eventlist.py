@@ -15,7 +15,7 @@ from rotmod.geometry import Instrument
 from rotmod.sky.attitude import Attitude
 
 if TYPE_CHECKING:
-    from rotmod.montecarlo.sources import PointSources
+    from rotmod.sky.sources import PointSources
 
 __all__ = ["EventList"]
 

@@ -413,7 +413,7 @@ def read_events(path: str | os.PathLike) -> EventList:
     RotmodError
         Missing file, not FITS, or missing extensions, columns or keywords.
     """
-    from rotmod.montecarlo.sources import PointSources
+    from rotmod.sky.sources import PointSources
 
     with _open(path) as hdul:
         ev = _ext(hdul, "EVENTS", path)

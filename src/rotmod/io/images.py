@@ -1,5 +1,6 @@
-"""FITS images of reconstructions: primary image with the grid's TAN WCS, uncertainty
-extension, parameters and fit history in the header; an atomic writer and a reader."""
+"""FITS images of reconstructions: the image and its uncertainty in the grid's FITS form (a
+primary image with the grid's WCS, or a pixel table; see :mod:`rotmod.sky.geometry`),
+parameters and fit history in the header; an atomic writer and a reader."""
 
 from __future__ import annotations
 
@@ -12,9 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from rotmod.io.atomic import atomic_path
 from rotmod.errors import ParameterError
 from rotmod.io._fits import header_text, open_verified
+from rotmod.io.atomic import atomic_path, check_overwrite
+from rotmod.sky.geometry import SkyGeometry, image_from_hdus
 
 __all__ = ["FitsImage", "read_image", "write_image"]
 
@@ -39,8 +41,10 @@ class FitsImage:
     Attributes
     ----------
     image : ndarray (ny, nx)
+        ``(1, n_sky)`` for a pixel table (e.g. a HEALPix image).
     uncertainty : ndarray (ny, nx) or None
-    wcs : astropy.wcs.WCS
+    wcs : astropy.wcs.WCS or None
+        None for a pixel table.
     header : astropy.io.fits.Header
         The primary header.
     params : dict
@@ -62,7 +66,7 @@ def write_image(
     result: Any = None,
     *,
     image: Any = None,
-    grid: Any = None,
+    grid: SkyGeometry | None = None,
     uncertainty: Any = None,
     bunit: str = "ph s-1 pixel-1",
     meta: dict[str, Any] | None = None,
@@ -97,16 +101,15 @@ def write_image(
     Notes
     -----
     The file is written to a temporary name in the same directory and renamed into place,
-    so readers never see a partial file.  HDUs: primary (image + WCS), ``UNCERTAINTY``
-    (same WCS; only if given), ``HISTORY`` (binary table of the fit statistic per
-    iteration; only for results).
+    so readers never see a partial file.  HDUs: the image in the grid's form
+    (:meth:`~rotmod.sky.SkyGeometry.image_hdus`: primary image + WCS and an ``UNCERTAINTY``
+    image if given, or an empty primary and a pixel table), then ``HISTORY`` (binary table
+    of the fit statistic per iteration; only for results).
     """
     from astropy.io import fits
     from astropy.table import Table
 
-    p = Path(path)
-    if p.exists() and not overwrite:
-        raise ParameterError(f"path {str(p)!r} exists; pass overwrite=True to replace it")
+    p = check_overwrite(path, overwrite)
     img = image if image is not None else (None if result is None else result.image)
     if img is None:
         raise ParameterError("image is required (give a result or image=)")
@@ -114,13 +117,19 @@ def write_image(
     g = grid if grid is not None else getattr(result, "grid", None)
     if g is None:
         raise ParameterError("grid is required: the result has no sky grid")
+    if not isinstance(g, SkyGeometry):
+        raise ParameterError(f"grid must be a sky grid (a SkyGeometry), got {type(g).__name__}")
     if img.shape != tuple(g.shape):
         raise ParameterError(f"image must have the grid's shape {g.shape}, got {img.shape}")
     unc = uncertainty if uncertainty is not None else getattr(result, "uncertainty", None)
-    # HEALPix grids have no WCS: their image is a table of explicit pixel indices.
-    healpix = hasattr(g, "pixels")
-    hdr = fits.Header() if healpix else g.wcs().to_header()
-    hdr["BUNIT"] = (bunit, "sky units of the response")
+    if unc is not None:
+        unc = np.asarray(unc, dtype=float)
+        if unc.shape != img.shape:
+            raise ParameterError(
+                f"uncertainty must have the image's shape {img.shape}, got {unc.shape}"
+            )
+    hdus = g.image_hdus(img, unc, bunit)
+    hdr = hdus[0].header
     hdr["ORIGIN"] = "rotmod"
     if result is not None:
         hdr["RECMETH"] = (result.method, "reconstruction method")
@@ -138,20 +147,6 @@ def write_image(
         # Short names are standard cards (EXPOSURE, E_MIN, E_MAX, TELESCOP, OBS_ID...).
         key = k.upper() if re.fullmatch(r"[A-Za-z0-9_-]{1,8}", k) else f"HIERARCH {k}"
         hdr[key] = _card_value(v)
-    if healpix:
-        hdus = [fits.PrimaryHDU(header=hdr), _healpix_hdu(g, img, unc, bunit)]
-    else:
-        hdus = [fits.PrimaryHDU(img, header=hdr)]
-    if unc is not None and not healpix:
-        u_arr = np.asarray(unc, dtype=float)
-        if u_arr.shape != img.shape:
-            raise ParameterError(
-                f"uncertainty must have the image's shape {img.shape}, got {u_arr.shape}"
-            )
-        uh = g.wcs().to_header()
-        uh["BUNIT"] = bunit
-        uh["EXTNAME"] = "UNCERTAINTY"
-        hdus.append(fits.ImageHDU(u_arr, header=uh, name="UNCERTAINTY"))
     if result is not None and result.history:
         t = Table({k: np.asarray(v, dtype=float) for k, v in result.history.items()})
         th = fits.table_to_hdu(t)
@@ -166,47 +161,18 @@ def write_image(
     return p
 
 
-def _healpix_hdu(grid: Any, img: np.ndarray, unc: Any, bunit: str) -> Any:
-    """A HEALPix FITS table (explicit indexing, the convention healpy and gammapy read)."""
-    from astropy.io import fits
-
-    cols = [fits.Column("PIXEL", "K", array=np.asarray(grid.pixels, dtype=np.int64)),
-            fits.Column("INTENSITY", "D", unit=bunit, array=img.ravel())]
-    if unc is not None:
-        u_arr = np.asarray(unc, dtype=float)
-        if u_arr.shape != img.shape:
-            raise ParameterError(
-                f"uncertainty must have the image's shape {img.shape}, got {u_arr.shape}"
-            )
-        cols.append(fits.Column("UNCERTAINTY", "D", unit=bunit, array=u_arr.ravel()))
-    tab = fits.BinTableHDU.from_columns(cols, name="HEALPIX")
-    h = tab.header
-    h["PIXTYPE"] = ("HEALPIX", "HEALPix pixelisation")
-    h["ORDERING"] = (grid.order.upper(), "pixel ordering scheme")
-    h["NSIDE"] = (grid.nside, "HEALPix resolution parameter")
-    h["INDXSCHM"] = ("EXPLICIT", "pixel indices in the PIXEL column")
-    h["OBJECT"] = ("PARTIAL", "a cone, not the whole sky")
-    h["COORDSYS"] = ("C", "celestial (ICRS)")
-    return tab
-
-
 def read_image(path: str | os.PathLike[str]) -> FitsImage:
     """Read a FITS image written by :func:`write_image` (or any 2-D image with a WCS).
 
     Raises
     ------
     ParameterError
-        Missing file or no 2-D primary image.
+        Missing file, or neither a 2-D primary image nor a pixel table.
     """
-    from astropy.wcs import WCS
-
     p = Path(path)
     with open_verified(p) as hl:
         hdr = hl[0].header.copy()
-        if hl[0].data is None or hl[0].data.ndim != 2:
-            raise ParameterError(f"path {str(p)!r} has no 2-D primary image")
-        img = np.array(hl[0].data, dtype=float)
-        unc = np.array(hl["UNCERTAINTY"].data, dtype=float) if "UNCERTAINTY" in hl else None
+        img, unc, wcs = image_from_hdus(hl, str(p))
         hist: dict[str, np.ndarray] = {}
         if "HISTORY" in hl:
             data = hl["HISTORY"].data
@@ -215,4 +181,4 @@ def read_image(path: str | os.PathLike[str]) -> FitsImage:
         for card in hdr.cards:
             if card.keyword.startswith("RECPAR "):
                 params[card.keyword[len("RECPAR "):].lower()] = card.value
-    return FitsImage(img, unc, WCS(hdr), hdr, params, hist)
+    return FitsImage(img, unc, wcs, hdr, params, hist)

@@ -23,7 +23,10 @@ from rotmod.montecarlo.simulate import (
     simulate_observation,
     simulate_profiles,
 )
-from rotmod.montecarlo.sources import PointSources
+
+# PointSources is sky truth (rotmod.sky.sources); it stays importable from here because
+# rotmod.montecarlo has documented it (its __all__, the API reference) since the start.
+from rotmod.sky.sources import PointSources
 
 __all__ = [
     "MCProfiles",

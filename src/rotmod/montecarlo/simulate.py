@@ -18,7 +18,7 @@ from rotmod.geometry import Instrument, disc_flux
 from rotmod.limits import check_memory
 from rotmod.montecarlo import _transport as tr
 from rotmod.montecarlo._rng import chunk_states, seed_sequence
-from rotmod.montecarlo.sources import PointSources
+from rotmod.sky.sources import PointSources
 
 __all__ = [
     "MCProfiles", "chord_lengths", "simulate_drift", "simulate_observation", "simulate_profiles",

@@ -125,9 +125,9 @@ def make_scenario(name: str, size: str = "small", seed: int = 0) -> Scenario:
     from rotmod.events import fold
     from rotmod.geometry import DetectorArray, Instrument
     from rotmod.materials import PAPER_SIGMA_662
-    from rotmod.montecarlo import PointSources, simulate_observation
+    from rotmod.montecarlo import simulate_observation
     from rotmod.response import TimeBinning
-    from rotmod.sky.grid import SkyGrid
+    from rotmod.sky import PointSources, SkyGrid
 
     if size not in ("small", "full"):
         raise ParameterError(f"size must be 'small' or 'full', got {size!r}")

@@ -1,20 +1,33 @@
-"""Sky images with the true source positions marked, axes in degrees (the paper's style)."""
+"""Sky images with the true source positions marked, axes in degrees (the paper's style).
+
+Each grid kind is drawn by the function registered under its
+:attr:`~rotmod.sky.SkyGeometry.kind` in :data:`IMAGE_DRAWERS`; a kind without one (e.g.
+HEALPix, or a new kind) is drawn pixel by pixel at its instrument directions.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
+from rotmod._validate import as_angle
 from rotmod.errors import ParameterError
+from rotmod.registry import Registry
+from rotmod.sky.geometry import SkyGeometry
 
-__all__ = ["plot_comparison", "plot_image"]
+__all__ = ["IMAGE_DRAWERS", "plot_comparison", "plot_image"]
+
+#: ``draw(img, grid, sources, ax, cmap) -> (ax, mappable)`` by grid kind: puts the image on
+#: ``ax`` (a new figure's axes of the drawer's choice when None), marks the sources, labels
+#: the axes.
+IMAGE_DRAWERS: Registry[Callable[..., tuple[Any, Any]]] = Registry("grid kind")
 
 
 def plot_image(
     image: Any,
-    grid: Any,
+    grid: SkyGeometry,
     *,
     sources: Any = None,
     ax: Any = None,
@@ -27,12 +40,14 @@ def plot_image(
     """Show a sky image on its grid with true sources as crosses.
 
     Instrument-frame grids are drawn in tangent-plane degrees; celestial grids
-    (:class:`~rotmod.sky.CelestialGrid`) on WCS axes in RA and Dec, east left.
+    (:class:`~rotmod.sky.CelestialGrid`) on WCS axes in RA and Dec, east left; other kinds
+    (HEALPix, ...) as one dot per pixel at ``theta (cos phi, sin phi)`` in the instrument
+    frame (see :data:`IMAGE_DRAWERS`).
 
     Parameters
     ----------
     image : ndarray (ny, nx) or ReconstructionResult
-    grid : SkyGrid
+    grid : SkyGeometry
     sources : (theta, phi) or SkyCoord, optional
         True source directions (Quantities, or plain numbers in deg; a SkyCoord on a
         celestial grid), marked with ``+``.
@@ -49,16 +64,28 @@ def plot_image(
     -------
     matplotlib.axes.Axes
     """
-    import matplotlib.pyplot as plt
-
     img = np.asarray(getattr(image, "image", image), dtype=float)
     if img.shape != tuple(grid.shape):
         raise ParameterError(f"image must have the grid's shape {grid.shape}, got {img.shape}")
     if relative and img.max() > 0:
         img = img / img.max()
-    if not hasattr(grid, "center"):
-        return _plot_celestial(img, grid, sources, ax, title, cmap, colorbar,
-                               "relative intensity" if relative else unit)
+    draw = (IMAGE_DRAWERS.get(grid.kind) if grid.kind in IMAGE_DRAWERS
+            else _draw_directions)
+    ax, im = draw(img, grid, sources, ax, cmap)
+    if title:
+        ax.set_title(title, fontsize=9)
+    if colorbar:
+        cb = ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        cb.set_label("relative intensity" if relative else unit, fontsize=7)
+    return ax
+
+
+@IMAGE_DRAWERS.register("instrument")
+def _draw_tangent_plane(img: np.ndarray, grid: Any, sources: Any, ax: Any,
+                        cmap: str) -> tuple[Any, Any]:
+    """An instrument-frame grid (:class:`~rotmod.sky.SkyGrid`) in tangent-plane degrees."""
+    import matplotlib.pyplot as plt
+
     if ax is None:
         _, ax = plt.subplots(figsize=(3, 3))
     ny, nx = grid.shape
@@ -77,17 +104,14 @@ def plot_image(
     # not sky positions (those need the pointing; see rotmod.io.images for the WCS).
     ax.set_xlabel("tangent-plane x (deg)", fontsize=8)
     ax.set_ylabel("tangent-plane y (deg)", fontsize=8)
-    if title:
-        ax.set_title(title, fontsize=9)
-    if colorbar:
-        cb = ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
-        cb.set_label("relative intensity" if relative else unit, fontsize=7)
-    return ax
+    return ax, im
 
 
-def _plot_celestial(img: np.ndarray, grid: Any, sources: Any, ax: Any, title: str | None,
-                    cmap: str, colorbar: bool, label: str) -> Any:
-    """An image on a celestial grid, on WCS axes (RA, Dec; east left)."""
+@IMAGE_DRAWERS.register("celestial")
+def _draw_celestial(img: np.ndarray, grid: Any, sources: Any, ax: Any,
+                    cmap: str) -> tuple[Any, Any]:
+    """A celestial grid (:class:`~rotmod.sky.CelestialGrid`) on WCS axes (RA, Dec; east
+    left)."""
     import matplotlib.pyplot as plt
 
     if ax is None:
@@ -99,16 +123,34 @@ def _plot_celestial(img: np.ndarray, grid: Any, sources: Any, ax: Any, title: st
                 transform=ax.get_transform("icrs"))
     ax.set_xlabel("RA (ICRS)", fontsize=8)
     ax.set_ylabel("Dec (ICRS)", fontsize=8)
-    if title:
-        ax.set_title(title, fontsize=9)
-    if colorbar:
-        ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04).set_label(label, fontsize=7)
-    return ax
+    return ax, im
+
+
+def _draw_directions(img: np.ndarray, grid: SkyGeometry, sources: Any, ax: Any,
+                     cmap: str) -> tuple[Any, Any]:
+    """Any grid: one dot per pixel at ``theta (cos phi, sin phi)`` (deg) in the instrument
+    frame (the azimuthal equidistant projection about the rotation axis)."""
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(3, 3))
+    theta, phi = (v.to_value("rad") for v in grid.directions())
+    r = np.degrees(theta)
+    im = ax.scatter(r * np.cos(phi), r * np.sin(phi), c=img.ravel(), cmap=cmap, s=12,
+                    marker="s", linewidths=0)
+    if sources is not None:  # (theta, phi) of the true sources
+        th = np.degrees(as_angle(np.atleast_1d(sources[0]), "sources[0]"))
+        ph = as_angle(np.atleast_1d(sources[1]), "sources[1]")
+        ax.plot(th * np.cos(ph), th * np.sin(ph), "+", color="k", ms=10, mew=1.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("theta cos phi (deg)", fontsize=8)
+    ax.set_ylabel("theta sin phi (deg)", fontsize=8)
+    return ax, im
 
 
 def plot_comparison(
     images: Sequence[Any],
-    grid: Any,
+    grid: SkyGeometry,
     *,
     titles: Sequence[str] | None = None,
     sources: Any = None,
@@ -120,7 +162,7 @@ def plot_comparison(
     Parameters
     ----------
     images : sequence of ndarray or ReconstructionResult
-    grid : SkyGrid
+    grid : SkyGeometry
     titles : sequence of str, optional
     sources : (theta, phi), optional
     axes : sequence of Axes, optional

@@ -1,18 +1,17 @@
 """The sky: pixelised fields of view (in the instrument frame, or on the celestial sphere with
-a true celestial WCS) and the attitude that places the instrument frame on the sky."""
+a true celestial WCS), the attitude that places the instrument frame on the sky, and the
+point sources that are the sky's truth.
 
-from typing import Any
+Every grid is a :class:`SkyGeometry`; :func:`grid_from_dict` reads any grid's ``to_dict()``
+back through the registry :data:`GRID_KINDS` (see :mod:`rotmod.sky.geometry`).
+"""
 
 from rotmod.sky.attitude import Attitude, AttitudeTable
 from rotmod.sky.celestial import CelestialGrid
+from rotmod.sky.geometry import GRID_KINDS, SkyGeometry, WcsGeometry, grid_from_dict
 from rotmod.sky.grid import SkyGrid
 from rotmod.sky.healpix import HealpixGrid
+from rotmod.sky.sources import PointSources
 
-__all__ = ["Attitude", "AttitudeTable", "CelestialGrid", "HealpixGrid", "SkyGrid",
-           "grid_from_dict"]
-
-
-def grid_from_dict(d: dict[str, Any]) -> SkyGrid | CelestialGrid | HealpixGrid:
-    """The grid a ``to_dict()`` describes (by its ``kind``; default an instrument grid)."""
-    kinds = {"celestial": CelestialGrid, "healpix": HealpixGrid}
-    return kinds.get(d.get("kind", ""), SkyGrid).from_dict(d)
+__all__ = ["GRID_KINDS", "Attitude", "AttitudeTable", "CelestialGrid", "HealpixGrid",
+           "PointSources", "SkyGeometry", "SkyGrid", "WcsGeometry", "grid_from_dict"]

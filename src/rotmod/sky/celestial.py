@@ -22,13 +22,15 @@ from rotmod._validate import as_angle_scalar
 from rotmod.errors import ParameterError
 from rotmod.limits import check_memory
 from rotmod.sky.attitude import Attitude
+from rotmod.sky.geometry import GRID_KINDS, WcsGeometry
 
 __all__ = ["CelestialGrid"]
 
 
 @dataclass(frozen=True)
-class CelestialGrid:
-    """A TAN image of ``shape`` pixels of ``pixel_size`` centred on ``(ra, dec)``.
+class CelestialGrid(WcsGeometry):
+    """A TAN image of ``shape`` pixels of ``pixel_size`` centred on ``(ra, dec)`` (kind
+    ``"celestial"``).
 
     Parameters
     ----------
@@ -42,6 +44,9 @@ class CelestialGrid:
         The instrument's pointing and roll, which turn pixel positions into instrument
         directions.
     """
+
+    kind = "celestial"
+    frame = "celestial"
 
     shape: tuple[int, int]
     pixel_size: Any
@@ -99,7 +104,7 @@ class CelestialGrid:
         """Plain description (deg) for metadata; :meth:`from_dict` reads it back."""
         a = self.attitude
         return {
-            "kind": "celestial", "shape": list(self.shape), "pixel_size": self.pixel_size,
+            "kind": self.kind, "shape": list(self.shape), "pixel_size": self.pixel_size,
             "ra": self.ra, "dec": self.dec,
             "attitude": {"ra": a.ra, "dec": a.dec, "roll": a.roll},
         }
@@ -109,3 +114,6 @@ class CelestialGrid:
         """Inverse of :meth:`to_dict`."""
         return cls(tuple(d["shape"]), d["pixel_size"], d["ra"], d["dec"],
                    Attitude(**d["attitude"]))
+
+
+GRID_KINDS.register(CelestialGrid.kind, CelestialGrid)

@@ -27,8 +27,10 @@ import astropy.units as u
 import numpy as np
 
 from rotmod._validate import as_angle, as_scalar
+from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
 from rotmod.limits import check_memory
+from rotmod.sky.geometry import GRID_KINDS, WcsGeometry
 
 if TYPE_CHECKING:
     from astropy.wcs import WCS
@@ -37,8 +39,8 @@ __all__ = ["SkyGrid"]
 
 
 @dataclass(frozen=True)
-class SkyGrid:
-    """A square-pixel tangent-plane grid.
+class SkyGrid(WcsGeometry):
+    """A square-pixel tangent-plane grid in the instrument frame (kind ``"instrument"``).
 
     Parameters
     ----------
@@ -54,6 +56,9 @@ class SkyGrid:
         Instrument direction ``(theta, phi)`` (deg) where the projection plane touches the
         sky (``0 <= theta < 90``); default the rotation axis.
     """
+
+    kind = "instrument"
+    frame = "instrument"
 
     shape: tuple[int, int]
     pixel_size: float
@@ -88,8 +93,7 @@ class SkyGrid:
 
     def _basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Lab unit vectors ``n0`` (the tangent point), ``e_x`` (+RA) and ``e_y`` (+Dec) there."""
-        th, ph = np.radians(self.tangent)
-        n0 = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+        n0 = source_direction(*np.radians(self.tangent))
         ra0, dec0 = self._tangent_radec()
         ra0, dec0 = np.radians(ra0), np.radians(dec0)
         # Celestial (X, Y, Z) = lab (z, x, y): +RA = (-sin a, cos a, 0), +Dec = (-sin d cos a,
@@ -100,8 +104,7 @@ class SkyGrid:
 
     def _tangent_radec(self) -> tuple[float, float]:
         """The tangent point in the instrument frame's sky coordinates (deg)."""
-        th, ph = np.radians(self.tangent)
-        x, y, z = np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)
+        x, y, z = source_direction(*np.radians(self.tangent))
         return float(np.degrees(np.arctan2(x, z))), float(np.degrees(np.arcsin(y)))
 
     @classmethod
@@ -156,7 +159,7 @@ class SkyGrid:
         if self.tangent[0] == 0.0:  # tangent at the axis: the closed forms
             t = np.tan(th)
             return np.degrees(t * np.cos(ph)), np.degrees(t * np.sin(ph))
-        d = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+        d = source_direction(th, ph)
         n0, ex, ey = self._basis()
         dn = d @ n0
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -169,9 +172,8 @@ class SkyGrid:
         if self.tangent[0] == 0.0:  # tangent at the axis: the closed forms
             return np.arctan(np.hypot(xr, yr)) * u.rad, np.arctan2(yr, xr) * u.rad
         n0, ex, ey = self._basis()
-        d = n0 + xr[..., None] * ex + yr[..., None] * ey
-        theta = np.arctan2(np.hypot(d[..., 0], d[..., 1]), d[..., 2])
-        return theta * u.rad, np.arctan2(d[..., 1], d[..., 0]) * u.rad
+        theta, phi = source_angles(n0 + xr[..., None] * ex + yr[..., None] * ey)
+        return theta * u.rad, phi * u.rad
 
     def wcs(self) -> WCS:
         """An `astropy.wcs.WCS` (TAN) for images on this grid (see module notes)."""
@@ -205,3 +207,6 @@ class SkyGrid:
         the axis)."""
         return cls(tuple(d["shape"]), d["pixel_size"], tuple(d["center"]),
                    tuple(d.get("tangent", (0.0, 0.0))))
+
+
+GRID_KINDS.register(SkyGrid.kind, SkyGrid)

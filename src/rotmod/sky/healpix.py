@@ -5,7 +5,7 @@ cone; through an :class:`~rotmod.sky.attitude.Attitude` each pixel centre is an 
 direction, so every response operator takes it like any other grid.  Pixels at or beyond
 90 deg from the rotation axis cannot be seen (the detectors face the sky) and are refused.
 Images on it are written as HEALPix FITS tables with explicit pixel indices
-(:func:`rotmod.io.images.write_image`).
+(:meth:`HealpixGrid.image_hdus`, called by :func:`rotmod.io.images.write_image`).
 """
 
 from __future__ import annotations
@@ -21,13 +21,14 @@ from rotmod._validate import as_angle_scalar, as_int
 from rotmod.errors import ParameterError
 from rotmod.limits import check_memory
 from rotmod.sky.attitude import Attitude
+from rotmod.sky.geometry import GRID_KINDS, SkyGeometry, pixel_table_hdus
 
 __all__ = ["HealpixGrid"]
 
 
 @dataclass(frozen=True)
-class HealpixGrid:
-    """The HEALPix pixels of ``nside`` within ``radius`` of ``(ra, dec)``.
+class HealpixGrid(SkyGeometry):
+    """The HEALPix pixels of ``nside`` within ``radius`` of ``(ra, dec)`` (kind ``"healpix"``).
 
     Parameters
     ----------
@@ -41,6 +42,9 @@ class HealpixGrid:
     attitude : Attitude
     order : {"nested", "ring"}
     """
+
+    kind = "healpix"
+    frame = "celestial"
 
     nside: int
     ra: Any
@@ -106,7 +110,7 @@ class HealpixGrid:
     def to_dict(self) -> dict[str, Any]:
         """Plain description (deg) for metadata; :meth:`from_dict` reads it back."""
         a = self.attitude
-        return {"kind": "healpix", "nside": self.nside, "order": self.order, "ra": self.ra,
+        return {"kind": self.kind, "nside": self.nside, "order": self.order, "ra": self.ra,
                 "dec": self.dec, "radius": self.radius,
                 "attitude": {"ra": a.ra, "dec": a.dec, "roll": a.roll}}
 
@@ -115,3 +119,21 @@ class HealpixGrid:
         """Inverse of :meth:`to_dict`."""
         return cls(d["nside"], d["ra"], d["dec"], d["radius"], Attitude(**d["attitude"]),
                    d.get("order", "nested"))
+
+    def image_hdus(self, image: np.ndarray, uncertainty: np.ndarray | None,
+                   bunit: str) -> list[Any]:
+        """A HEALPix FITS table with explicit indexing (the convention healpy and gammapy
+        read): columns ``PIXEL``, ``INTENSITY`` and ``UNCERTAINTY`` (if given)."""
+        hdus = pixel_table_hdus(image, uncertainty, bunit, name="HEALPIX",
+                                index=("PIXEL", self.pixels))
+        h = hdus[1].header
+        h["PIXTYPE"] = ("HEALPIX", "HEALPix pixelisation")
+        h["ORDERING"] = (self.order.upper(), "pixel ordering scheme")
+        h["NSIDE"] = (self.nside, "HEALPix resolution parameter")
+        h["INDXSCHM"] = ("EXPLICIT", "pixel indices in the PIXEL column")
+        h["OBJECT"] = ("PARTIAL", "a cone, not the whole sky")
+        h["COORDSYS"] = ("C", "celestial (ICRS)")
+        return hdus
+
+
+GRID_KINDS.register(HealpixGrid.kind, HealpixGrid)

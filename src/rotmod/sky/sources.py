@@ -1,4 +1,4 @@
-"""Point sources at infinity: the input of the Monte Carlo's observation mode."""
+"""Point sources at infinity: the sky's truth, the input of the Monte Carlo's observation mode."""
 
 from __future__ import annotations
 

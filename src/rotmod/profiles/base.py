@@ -36,6 +36,7 @@ from rotmod.limits import check_memory
 from rotmod.registry import Registry
 
 __all__ = [
+    "DEFAULT_COMPARISON",
     "DEFAULT_MODEL",
     "MODELS",
     "ProfileModel",
@@ -322,6 +323,10 @@ MODELS: Registry[Callable[[], ProfileModel]] = Registry("model")
 #: model is valid for every geometry, and within the advanced model's domain it costs about
 #: the same (docs/physics.md).
 DEFAULT_MODEL = "exact"
+
+#: The models compared when none are named (``rotmod profile``, the report's profile
+#: figures): the paper's standard and advanced models and the exact one.
+DEFAULT_COMPARISON: tuple[str, ...] = ("standard", "advanced", "exact")
 
 _M = TypeVar("_M", bound=type[ProfileModel])
 

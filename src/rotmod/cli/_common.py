@@ -223,6 +223,15 @@ def count(lo: int) -> Callable[[str], int]:
 def registered(registry: Registry[Any], name: str, option: str) -> str:
     """``name``, if ``registry`` holds it.
 
+    Parameters
+    ----------
+    registry : Registry
+        Where the names are registered (e.g. :data:`rotmod.profiles.MODELS`).
+    name : str
+        The name given on the command line.
+    option : str
+        The option that gave it (``"--model"``), which opens the message.
+
     Raises
     ------
     ParameterError

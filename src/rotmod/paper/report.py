@@ -57,6 +57,7 @@ from rotmod.paper.provenance import provenance
 from rotmod.paper.selection import IMAGE_PAIR, REFERENCE_MODEL, SPEED_MODELS, check_registered
 from rotmod.profiles import DEFAULT_COMPARISON, MODELS, get_model
 from rotmod.reconstruction import ALGORITHMS, get_algorithm, reconstruct
+from rotmod.registry import Registry
 
 __all__ = ["SIZES", "STEPS", "ReproduceResult", "reproduce"]
 
@@ -67,9 +68,11 @@ _IMAGE_SCENARIOS = tuple(IMAGE_CLAIMS)
 #: The imaging scenario of the lab prototype.
 _PROTOTYPE = "d"
 
-#: Run sizes.  ``tiny`` is for the test suite (seconds; results not meaningful).  The
-#: scenarios, models and methods are registry names, checked when this module is imported.
-SIZES: dict[str, dict[str, Any]] = {
+#: Run sizes by name.  ``tiny`` is for the test suite (seconds; results not meaningful).
+#: The scenarios, models and methods they name are registry names, checked when this module
+#: is imported.
+SIZES: Registry[dict[str, Any]] = Registry("size")
+for _size, _cfg in {
     "tiny": {
         "scenarios": ("thick20", "wide50"), "n_photons": 1500, "n_angles": 72,
         "speed_grid": (20, 20), "speed_bins": 56, "speed_repeats": 1, "mc_photons": 2e5,
@@ -93,15 +96,15 @@ SIZES: dict[str, dict[str, Any]] = {
         "max_iter": None, "prototype": True, "bin_mode": "average",
         "proto_models": DEFAULT_COMPARISON, "proto_methods": ("mlem", "ncar"),
     },
-}
-
-check_registered(scenarios.SCENARIOS, (*_IMAGE_SCENARIOS, _PROTOTYPE), "report scenarios")
-for _size, _cfg in SIZES.items():
+}.items():
+    SIZES.register(_size, _cfg)
     check_registered(validation.SCENARIOS, _cfg["scenarios"] or (), f"SIZES[{_size!r}]")
     check_registered(MODELS, (*_cfg["image_models"], *_cfg["proto_models"]),
                      f"SIZES[{_size!r}]")
     check_registered(ALGORITHMS, (*_cfg["methods"], *_cfg["proto_methods"]),
                      f"SIZES[{_size!r}]")
+check_registered(scenarios.SCENARIOS, (*_IMAGE_SCENARIOS, _PROTOTYPE), "report scenarios")
+
 
 @dataclass
 class ReproduceResult:
@@ -472,8 +475,7 @@ def reproduce(
     -------
     ReproduceResult
     """
-    if size not in SIZES:
-        raise ParameterError(f"size must be one of {sorted(SIZES)}, got {size!r}")
+    cfg = SIZES.get(size)
     chosen = list(STEPS) if steps is None else list(steps)
     bad = [s for s in chosen if s not in STEPS]
     if bad:
@@ -496,7 +498,6 @@ def reproduce(
     _write_json(marker, {"size": size, "seed": seed, "provenance": prov})
     for stale in out.glob(".*.tmp-*"):
         shutil.rmtree(stale, ignore_errors=True)
-    cfg = SIZES[size]
     t0 = time.perf_counter()
     results: dict[str, dict[str, Any]] = {}
     fns: dict[str, Callable[[Path], dict[str, Any]]] = {

@@ -181,8 +181,9 @@ class ProfileModel(ABC):
                 out[...] = ...  # P[d, t, n], in place
 
     after which :func:`get_model`, :meth:`profile`, the responses
-    (``build_response(..., model="my-model")``), the command line and the reports take it
-    by name.  The subclass implements :meth:`evaluate`, the extension point:
+    (``build_response(..., model="my-model")``) and the command line take it by name (the
+    paper's report compares its own selection, :mod:`rotmod.paper.selection`).  The
+    subclass implements :meth:`evaluate`, the extension point:
 
     * ``geom`` is the :class:`ProjectedGeometry` of the sources, already validated: per
       detector and source the crossing point ``X, Y`` (shape ``(n_det, n_src)``), per

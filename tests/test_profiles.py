@@ -401,7 +401,13 @@ def test_a_new_model_is_one_registered_class(paper_instrument, tmp_path) -> None
     resp = build_response(paper_instrument, SkyGrid((3, 4), 1.0), 8, model=name, energy=662)
     np.testing.assert_array_equal(resp.todense(), np.full((n_det, 8, 12), 0.25, np.float32))
     assert resp.metadata()["model"]["model"] == name
-    out = tmp_path / "p.csv"
-    assert main(["profile", "-s", "3,0", "-m", name, "--angles", "4", "-o", str(out)]) == 0
+    out, png = tmp_path / "p.csv", tmp_path / "p.png"
+    argv = ["profile", "-s", "3,0", "-m", name, "--angles", "4", "-o", out, "--plot", png]
+    assert main([str(a) for a in argv]) == 0
     t = Table.read(out, format="ascii.csv")
     assert set(t["model"]) == {name} and np.all(t["profile"] == 0.25)
+    # The plots give it a style of its own, in a colour no listed model uses.
+    from rotmod.plotting.profiles import MODEL_STYLE, model_style
+
+    assert png.stat().st_size > 0 and name not in MODEL_STYLE
+    assert model_style(name)["color"] not in {s["color"] for s in MODEL_STYLE.values()}

@@ -34,7 +34,7 @@ from rotmod.sky.grid import SkyGrid
 if TYPE_CHECKING:
     from rotmod.response import MaterialisedResponse
 
-__all__ = ["SCENARIOS", "Scenario", "make_scenario"]
+__all__ = ["SCENARIOS", "Scenario", "ScenarioSetup", "make_scenario"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,8 +108,34 @@ class Scenario:
 
 
 @dataclass(frozen=True)
-class _Setup:
-    """A scenario's observation before the simulation (what its registered function returns)."""
+class ScenarioSetup:
+    """A scenario's observation before the simulation: what its function in
+    :data:`SCENARIOS` returns, and :func:`make_scenario` simulates and folds.
+
+    Attributes
+    ----------
+    description : str
+    energy : float
+        Photon energy (keV).
+    instrument : Instrument
+    grid : SkyGrid
+    n_bins : int
+        Time bins per turn (bin-averaged responses, four sub-samples).
+    theta, phi : Quantity or ndarray
+        True source directions (plain numbers in rad).
+    flux : ndarray
+        True source rates (photons/s on one unobstructed detector face).
+    background_rate : float
+        Flat background per detector (1/s).
+    duration : float
+        Observation time (s; rounded up to whole rotations).
+    resolution, radius : float
+        Geometric resolution ``b/L`` and the metrics' source-region radius (deg).
+    reconstruct_kwargs : dict
+        Data options for the reconstruction.
+    stopping : StoppingRule or None
+        Stopping rule for the iterative methods (None: their defaults).
+    """
 
     description: str
     energy: float
@@ -129,7 +155,7 @@ class _Setup:
 
 #: The scenarios by name: each entry takes ``full`` (bool: the full size, else the small
 #: one) and returns the observation's set-up; :func:`make_scenario` simulates it.
-SCENARIOS: Registry[Callable[[bool], _Setup]] = Registry("scenario")
+SCENARIOS: Registry[Callable[[bool], ScenarioSetup]] = Registry("scenario")
 
 # name: (description, energy keV, thickness cm, theta deg)
 _PAPER = {
@@ -140,7 +166,7 @@ _PAPER = {
 }
 
 
-def _paper(name: str, full: bool) -> _Setup:
+def _paper(name: str, full: bool) -> ScenarioSetup:
     """The paper's scenario ``name`` (lead mask a = b = 4 cm, L = 100 cm, seven 4 cm
     detectors in a hexagon)."""
     desc, energy, h, theta_deg = _PAPER[name]
@@ -165,7 +191,7 @@ def _paper(name: str, full: bool) -> _Setup:
         center = (0.0, 0.0)
         n_bins = 240 if full else 120
     grid = SkyGrid((n_pix, n_pix), pix, center)
-    return _Setup(
+    return ScenarioSetup(
         desc, energy, inst, grid, n_bins, th, ph, flux=np.array([20.0]), background_rate=0.0,
         duration=3000.0 if full else 1000.0, resolution=resolution, radius=1.0,
         reconstruct_kwargs={},
@@ -177,7 +203,7 @@ for _name in _PAPER:
 
 
 @SCENARIOS.register("d")
-def _prototype(full: bool) -> _Setup:
+def _prototype(full: bool) -> ScenarioSetup:
     """The lab prototype: 19 detectors of 3.8 cm, a = b = c = 3.8 cm, b/L = 1.9 deg, two
     equal sources 35' apart on a flat background as strong as both sources."""
     desc = ("lab prototype: 19 x 3.8 cm detectors, b/L = 1.9 deg, two equal 122 keV sources "
@@ -198,7 +224,7 @@ def _prototype(full: bool) -> _Setup:
     # (chi2/dof <= 1) still applies.  Measured (small size, NCAR K = 0): dip 0.96 at the
     # default stop (700 iterations), 0.74 at 3000.
     stopping = StoppingRule(max_iter=3000, rel_tol=1e-9)
-    return _Setup(
+    return ScenarioSetup(
         desc, 122.0, inst, grid, 240 if full else 120, th, ph, flux=flux,
         background_rate=float(flux.sum()), duration=4000.0 if full else 1500.0,
         resolution=1.9, radius=0.25, reconstruct_kwargs={"fit_background": True},

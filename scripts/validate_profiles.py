@@ -19,7 +19,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from rotmod.paper.validation import DEFAULT_MODELS, SCENARIOS, plot_scenario, run_scenario
+from rotmod.paper.selection import VALIDATION_MODELS
+from rotmod.paper.validation import SCENARIOS, plot_scenario, run_scenario
 
 log = logging.getLogger("validate_profiles")
 
@@ -35,12 +36,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     args.out.mkdir(parents=True, exist_ok=True)
-    head = "| scenario | paper | dof | 0.5 % adds | " + " | ".join(DEFAULT_MODELS) + " |"
-    rows = [head, "|" + "---|" * (4 + len(DEFAULT_MODELS))]
-    devs = ["| scenario | " + " | ".join(DEFAULT_MODELS) + " |",
-            "|" + "---|" * (1 + len(DEFAULT_MODELS))]
+    head = "| scenario | paper | dof | 0.5 % adds | " + " | ".join(VALIDATION_MODELS) + " |"
+    rows = [head, "|" + "---|" * (4 + len(VALIDATION_MODELS))]
+    devs = ["| scenario | " + " | ".join(VALIDATION_MODELS) + " |",
+            "|" + "---|" * (1 + len(VALIDATION_MODELS))]
     notes = []
-    for i, sc in enumerate(SCENARIOS):
+    for i, (_, sc) in enumerate(SCENARIOS.items()):
         t0 = time.perf_counter()
         r = run_scenario(sc, n_photons=args.n_photons, n_angles=args.n_angles,
                          seed=args.seed + i)
@@ -56,10 +57,10 @@ def main(argv: list[str] | None = None) -> int:
         fig.savefig(args.out / f"validation_{sc.name}.png", dpi=args.dpi)
         plt.close(fig)
         dof = r.dof.get("exact", float("nan"))
-        cells = [f"{r.chi2_dof[m]:.3g}" if m in r.chi2_dof else "n/a" for m in DEFAULT_MODELS]
+        cells = [f"{r.chi2_dof[m]:.3g}" if m in r.chi2_dof else "n/a" for m in VALIDATION_MODELS]
         rows.append(f"| {sc.name} | {sc.paper} | {dof:.0f} | {r.resolution:.3g} | "
                     + " | ".join(cells) + " |")
-        dv = [f"{r.max_dev[m]:.2e}" if m in r.max_dev else "n/a" for m in DEFAULT_MODELS]
+        dv = [f"{r.max_dev[m]:.2e}" if m in r.max_dev else "n/a" for m in VALIDATION_MODELS]
         devs.append(f"| {sc.name} | " + " | ".join(dv) + " |")
         for m, why in r.skipped.items():
             notes.append(f"- {sc.name}, {m}: {why}")

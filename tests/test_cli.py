@@ -23,6 +23,35 @@ def test_help(capsys, cmd: str) -> None:
     assert "usage: rotmod" in out
 
 
+def _option_help(command: str, option: str) -> str:
+    import argparse
+
+    from rotmod.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return next(a.help for a in sub.choices[command]._actions if option in a.option_strings)
+
+
+def test_help_lists_the_registries() -> None:
+    # The names come from the registries, so a newly registered model or method shows up.
+    from rotmod.paper.report import STEPS
+    from rotmod.profiles import MODELS
+    from rotmod.reconstruction import ALGORITHMS
+    from rotmod.reconstruction.api import DEFAULT_METHOD
+
+    for command in ("profile", "response"):
+        assert ", ".join(MODELS.names()) in _option_help(command, "--model")
+    assert ", ".join(ALGORITHMS.names()) in _option_help("reconstruct", "--method")
+    assert f"default {DEFAULT_METHOD}" in _option_help("reconstruct", "--method")
+    assert ", ".join(STEPS) in _option_help("reproduce", "--steps")
+
+
+def test_unknown_names_suggest_the_closest(capsys, tmp_path) -> None:
+    code, _, err = run(capsys, "profile", "-s", "1,1", "-m", "advancd", "-o", tmp_path / "x.csv")
+    assert code == 2 and "--model: must be one of" in err and "did you mean 'advanced'?" in err
+    assert not (tmp_path / "x.csv").exists()
+
+
 def test_no_command_is_a_usage_error(capsys) -> None:
     code, _, err = run(capsys)
     assert code == 2 and "usage" in err

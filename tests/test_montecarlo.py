@@ -73,8 +73,8 @@ class _FlippedS(ExactModel):
 
     name = "exact-flipped-s"
 
-    def _evaluate(self, instrument, geom, cos_xi, sin_xi, out):
-        super()._evaluate(
+    def evaluate(self, instrument, geom, cos_xi, sin_xi, out):
+        super().evaluate(
             instrument, dataclasses.replace(geom, Sx=-geom.Sx, Sy=-geom.Sy), cos_xi, sin_xi, out
         )
 

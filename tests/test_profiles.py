@@ -15,7 +15,15 @@ from conftest import rad
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import PAPER_SIGMA_662, Material
-from rotmod.profiles import MODELS, AdvancedModel, StandardModel, get_model, project
+from rotmod.profiles import (
+    MODELS,
+    AdvancedModel,
+    ProfileModel,
+    StandardModel,
+    get_model,
+    project,
+    register_model,
+)
 from rotmod.profiles.advanced import advanced_point, alpha_factor
 from rotmod.profiles.exact import exact_point
 from rotmod.profiles.standard import segment_fraction
@@ -275,6 +283,10 @@ def test_registry_and_variants():
                                                        "g1": "approx"}
     with pytest.raises(ParameterError, match=r"model must be one of .*'nonsense'"):
         get_model("nonsense")
+    with pytest.raises(ParameterError, match=r"got 'exakt'; did you mean 'exact'\?"):
+        get_model("exakt")
+    instance = AdvancedModel("approx")
+    assert get_model(instance) is instance  # an instance passes through
     with pytest.raises(ParameterError, match="g1 must be one of"):
         AdvancedModel("maybe")
     with pytest.raises(ParameterError, match="transmission must be <= 1"):
@@ -356,3 +368,46 @@ def test_rows_kernel_matches_point_formula(rng):
                 ref = advanced_point(uc, s, c, a, b, geom.tau[n], alpha[n], n_slats, mode)
                 worst = max(worst, abs(P[d, t, n] - ref))
     assert worst < 1e-12
+
+
+class _Constant(ProfileModel):
+    """A toy model, one class and its registration: every detector sees the same fraction
+    of every source at every mask angle."""
+
+    def __init__(self, transmission: float = 0.25) -> None:
+        self.transmission = transmission
+
+    def evaluate(self, instrument, geom, cos_xi, sin_xi, out) -> None:
+        out[...] = self.transmission
+
+
+def test_a_new_model_is_one_registered_class(paper_instrument, tmp_path) -> None:
+    from astropy.table import Table
+
+    from rotmod.cli import main
+    from rotmod.response import build_response
+    from rotmod.sky.grid import SkyGrid
+
+    # What a model's module does when imported (registering the same class again is a no-op).
+    name = "test-constant"
+    register_model(name)(_Constant)
+    assert name in MODELS.names() and _Constant.name == name
+    model = get_model(name)
+    assert isinstance(model, _Constant) and model.describe() == {"model": name}
+    n_det = len(paper_instrument.detectors)
+    P = model.profile(paper_instrument, [3.0, 10.0], [0.0, 45.0], [0.0, 90.0, 180.0])
+    np.testing.assert_array_equal(P, np.full((n_det, 3, 2), 0.25))
+    # The responses and the command line take it by name, with no edit anywhere else.
+    resp = build_response(paper_instrument, SkyGrid((3, 4), 1.0), 8, model=name, energy=662)
+    np.testing.assert_array_equal(resp.todense(), np.full((n_det, 8, 12), 0.25, np.float32))
+    assert resp.metadata()["model"]["model"] == name
+    out, png = tmp_path / "p.csv", tmp_path / "p.png"
+    argv = ["profile", "-s", "3,0", "-m", name, "--angles", "4", "-o", out, "--plot", png]
+    assert main([str(a) for a in argv]) == 0
+    t = Table.read(out, format="ascii.csv")
+    assert set(t["model"]) == {name} and np.all(t["profile"] == 0.25)
+    # The plots give it a style of its own, in a colour no listed model uses.
+    from rotmod.plotting.profiles import MODEL_STYLE, model_style
+
+    assert png.stat().st_size > 0 and name not in MODEL_STYLE
+    assert model_style(name)["color"] not in {s["color"] for s in MODEL_STYLE.values()}

@@ -14,9 +14,12 @@ from rotmod.reconstruction import (
     ALGORITHMS,
     MLEM,
     PoissonData,
+    Reconstructor,
     StoppingRule,
+    get_algorithm,
     log_likelihood,
     reconstruct,
+    register_algorithm,
 )
 from rotmod.reconstruction.metrics import (
     find_peaks,
@@ -208,6 +211,34 @@ def test_bad_input_raises_naming_the_parameter(small: Dense) -> None:
 
 def test_registry_has_the_four_methods() -> None:
     assert {"backprojection", "mlem", "mart", "ncar"} <= set(ALGORITHMS)
+
+
+class _FluxScale(Reconstructor):
+    """A toy algorithm, one class and its registration: a flat image scaled to the counts."""
+
+    def _initial(self) -> np.ndarray:
+        return np.ones(self.model.size)
+
+    def _update(self) -> None:
+        self.z = self.z * (self.y.sum() / self.mu.sum())
+        self.mu = self.model.forward(self.z)
+
+
+def test_a_new_algorithm_is_one_registered_class(small: Dense) -> None:
+    # What an algorithm's module does when imported (the same class again is a no-op).
+    name = "test-flux-scale"
+    register_algorithm(name)(_FluxScale)
+    assert name in ALGORITHMS.names() and get_algorithm(name) is _FluxScale
+    y = np.round(20.0 * (small.forward(_point(small, 5, 5)) + 2.0))
+    res = reconstruct(small, y, name, exposure=20.0, max_iter=3)
+    assert res.method == name and 1 <= res.n_iter <= 3 and res.image.shape == small.grid.shape
+    # A flat image fitted to the total counts.
+    assert np.ptp(res.image) == 0 and res.model_counts.sum() == pytest.approx(y.sum())
+    boot = reconstruct(small, y, name, exposure=20.0, max_iter=3, uncertainty="bootstrap",
+                       n_boot=2, seed=1)
+    assert boot.uncertainty.shape == small.grid.shape
+    with pytest.raises(RotmodError, match=r"got 'mlme'; did you mean 'mlem'\?"):
+        reconstruct(small, y, "mlme")
 
 
 def test_metrics_on_synthetic_images() -> None:

@@ -95,3 +95,25 @@ def test_umask_022_gives_world_readable_files(tmp_path) -> None:
     for p in [tmp_path / "index.html", tmp_path / "reproduce.json",
               tmp_path / "speed" / "result.json", tmp_path / "speed"]:
         assert p.stat().st_mode & stat.S_IROTH, p
+
+
+def test_scenarios_and_selections_are_registry_names() -> None:
+    from rotmod.paper import selection
+    from rotmod.paper.report import SIZES
+    from rotmod.paper.scenarios import SCENARIOS, make_scenario
+    from rotmod.paper.validation import SCENARIOS as PROFILE_SCENARIOS
+    from rotmod.paper.validation import get_scenario
+    from rotmod.profiles import MODELS
+
+    assert SCENARIOS.names() == ("a", "b", "c", "d")
+    with pytest.raises(ParameterError, match=r"name must be one of .*got 'e'"):
+        make_scenario("e")
+    assert get_scenario("wide50") is PROFILE_SCENARIOS.get("wide50")
+    with pytest.raises(ParameterError, match=r"did you mean 'thick20'\?"):
+        get_scenario("thick2")
+    assert SIZES.names() == ("tiny", "quick", "full")
+    # Every selection names registered models; an unknown name is refused, naming the list.
+    for name in (*selection.VALIDATION_MODELS, *selection.IMAGE_PAIR, *selection.SPEED_MODELS):
+        assert name in MODELS
+    with pytest.raises(ParameterError, match=r"SIZES: model must be one of .*'exakt'"):
+        selection.check_registered(MODELS, ("exact", "exakt"), "SIZES")

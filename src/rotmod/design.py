@@ -349,7 +349,7 @@ def scan_designs(
         "n_theta": int(n_theta),
         "n_phi": int(n_phi),
         "n_angles": int(n_angles),
-        "model": "exact",
+        "model": exact.name,
     }
     if patterns is not None:
         settings["patterns"] = [list(e) for _, _, e in shapes]

@@ -11,8 +11,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rotmod.io.atomic import atomic_path
 from rotmod.errors import RotmodError
+from rotmod.io.atomic import atomic_path
+from rotmod.registry import Registry
 
 if TYPE_CHECKING:
     from rotmod.config import InstrumentConfig
@@ -217,6 +218,28 @@ def count(lo: int) -> Callable[[str], int]:
 
     conv.__name__ = f"integer >= {lo}"
     return conv
+
+
+def registered(registry: Registry[Any], name: str, option: str) -> str:
+    """``name``, if ``registry`` holds it.
+
+    Parameters
+    ----------
+    registry : Registry
+        Where the names are registered (e.g. :data:`rotmod.profiles.MODELS`).
+    name : str
+        The name given on the command line.
+    option : str
+        The option that gave it (``"--model"``), which opens the message.
+
+    Raises
+    ------
+    ParameterError
+        An unknown name, in the command line's ``OPTION: rule`` form (the message lists the
+        registered names and suggests the closest).
+    """
+    registry.get(name, parameter=f"{option}:")
+    return name
 
 
 def check_input(path: str | os.PathLike, what: str = "input") -> Path:

@@ -17,14 +17,15 @@ from rotmod.cli._common import (
     count,
     energy_of,
     load_config,
+    registered,
     save_figure,
     say,
     source_arg,
     use_agg,
     write_table,
 )
-
-DEFAULT_MODELS = ("standard", "advanced", "exact")
+from rotmod.errors import ModelValidityError
+from rotmod.profiles import DEFAULT_COMPARISON, DEFAULT_MODEL, MODELS, get_model
 
 
 def register(sub: Any) -> None:
@@ -42,9 +43,9 @@ def register(sub: Any) -> None:
     p.add_argument("-s", "--source", action="append", type=source_arg(), required=True,
                    metavar="THETA,PHI", help="source zenith and azimuth (deg); repeatable")
     p.add_argument("-m", "--model", action="append", default=None, metavar="NAME",
-                   help="profile model (standard, advanced, advanced-approx, advanced-g0, "
-                   "exact); repeatable; default standard, advanced and exact, skipping those "
-                   "that do not apply to the geometry")
+                   help=f"profile model ({', '.join(MODELS.names())}); repeatable; default "
+                   f"{', '.join(DEFAULT_COMPARISON)}, skipping those that do not apply to the "
+                   "geometry")
     p.add_argument("--angles", type=count(1), default=360, metavar="N",
                    help="mask angles over one turn (default 360)")
     p.add_argument("--detector", type=count(0), default=None, metavar="D",
@@ -59,9 +60,6 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from astropy.table import Table
-
-    from rotmod.errors import ModelValidityError
-    from rotmod.profiles import MODELS, get_model
 
     out = check_output(args.output, args.overwrite)
     plot = check_plot(args.plot, args.overwrite)
@@ -81,16 +79,14 @@ def run(args: argparse.Namespace) -> int:
     from rotmod.limits import check_memory
 
     # Every model's profiles plus the table's rows (~10 columns) for each of them.
-    n_models = len(args.model or DEFAULT_MODELS) + (args.mc_photons > 0)
+    n_models = len(args.model or DEFAULT_COMPARISON) + (args.mc_photons > 0)
     check_memory(8.0 * args.angles * n_det * len(src) * 11 * n_models,
                  f"profiles of {n_det} detectors x {args.angles} angles x {len(src)} sources",
                  hint="ask for fewer --angles")
     xi = (np.arange(args.angles) + 0.5) * (360.0 / args.angles)
     explicit = args.model is not None
-    names = list(dict.fromkeys(args.model or DEFAULT_MODELS))
-    for n in names:
-        if n not in MODELS:
-            raise UserError(f"--model: must be one of {', '.join(sorted(MODELS))}, got {n!r}")
+    names = [registered(MODELS, n, "--model")
+             for n in dict.fromkeys(args.model or DEFAULT_COMPARISON)]
     profiles: dict[str, np.ndarray] = {}
     for n in names:
         try:
@@ -100,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
                 raise
             say(f"rotmod: note: model {n!r} skipped: {exc}")
     if not profiles:
-        raise UserError("no model applies to this geometry; ask for --model exact")
+        # The default model is valid for every geometry (rotmod.profiles.DEFAULT_MODEL).
+        raise UserError(f"no model applies to this geometry; ask for --model {DEFAULT_MODEL}")
     mc = None
     if args.mc_photons > 0:
         from rotmod.montecarlo import simulate_profiles

@@ -15,11 +15,14 @@ from rotmod.cli._common import (
     count,
     iteration_bar,
     progress_wanted,
+    registered,
     save_figure,
     say,
     source_arg,
     use_agg,
 )
+from rotmod.reconstruction import ALGORITHMS, reconstruct
+from rotmod.reconstruction.api import DEFAULT_METHOD
 
 
 def register(sub: Any) -> None:
@@ -38,8 +41,8 @@ def register(sub: Any) -> None:
                    help="response store (zarr, from rotmod response: a matrix or a Radon "
                    "table)")
     p.add_argument("--method", default=None, metavar="NAME",
-                   help="algorithm (backprojection, mlem, osem, mart, sirt, sgp, sparse, ncar; "
-                   "default: the library's default, rotmod.reconstruction.api.DEFAULT_METHOD)")
+                   help=f"algorithm ({', '.join(ALGORITHMS.names())}; default "
+                   f"{DEFAULT_METHOD})")
     p.add_argument("--max-iter", type=count(1), default=None, metavar="N",
                    help="iteration limit (default: the method's)")
     p.add_argument("--fit-background", action="store_true",
@@ -61,16 +64,14 @@ def run(args: argparse.Namespace) -> int:
 
     from rotmod.io import read_folded
     from rotmod.io.images import write_image
-    from rotmod.reconstruction import ALGORITHMS, reconstruct
     from rotmod.response.stored import open_response
 
     src = check_input(args.folded, "folded profiles")
     rsp = check_input(args.response, "response")
     out = check_output(args.output, args.overwrite, inputs=(src, rsp))
     plot = check_plot(args.plot, args.overwrite)
-    if args.method is not None and args.method not in ALGORITHMS:
-        raise UserError(f"--method: must be one of {', '.join(sorted(ALGORITHMS))}, got "
-                        f"{args.method!r}")
+    if args.method is not None:
+        registered(ALGORITHMS, args.method, "--method")
     folded = read_folded(src)
     response = open_response(rsp, instrument=folded.instrument)
     if response.n_time != folded.n_bins:

@@ -23,8 +23,10 @@ from rotmod.cli._common import (
     load_config,
     progress_wanted,
     quantity,
+    registered,
     say,
 )
+from rotmod.profiles import DEFAULT_MODEL, MODELS
 
 
 def register(sub: Any) -> None:
@@ -49,8 +51,8 @@ def register(sub: Any) -> None:
                    help="what to store: every value of P (matrix, default) or the Radon "
                    "factorisation's table (radon; the exact model)")
     p.add_argument("-m", "--model", default=None, metavar="NAME",
-                   help="profile model (standard, advanced, advanced-approx, advanced-g0, "
-                   "exact; default exact; radon is always exact)")
+                   help=f"profile model ({', '.join(MODELS.names())}; default "
+                   f"{DEFAULT_MODEL}; radon is always exact)")
     p.add_argument("--tolerance", type=float, default=1e-4, metavar="DP",
                    help="radon: largest error of any profile value (default 1e-4)")
     p.add_argument("--fov", type=quantity("deg"), default=14.0, metavar="DEG",
@@ -85,16 +87,12 @@ def parse_pair(text: str, option: str = "--center", names: str = "X,Y") -> tuple
 
 
 def run(args: argparse.Namespace) -> int:
-    from rotmod.profiles import DEFAULT_MODEL, MODELS
     from rotmod.response import RadonResponse, TimeBinning
     from rotmod.response.stored import save_response, write_response
     from rotmod.sky import SkyGrid
 
-    args.model = args.model or DEFAULT_MODEL
+    args.model = registered(MODELS, args.model or DEFAULT_MODEL, "--model")
     out = check_output(args.output, args.overwrite)
-    if args.model not in MODELS:
-        raise UserError(f"--model: must be one of {', '.join(sorted(MODELS))}, got "
-                        f"{args.model!r}")
     if args.operator == "radon" and args.model != "exact":
         raise UserError(f"--model: --operator radon factorises the exact model, got "
                         f"{args.model!r}")

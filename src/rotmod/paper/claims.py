@@ -8,23 +8,28 @@ lab prototype's two-source result (Sec. 4.3).
 from __future__ import annotations
 
 __all__ = [
-    "IMAGE_CLAIMS", "OUTSIDE", "PAPER_SPEED_S", "PROFILE_CLAIMS", "PROTO_CLAIM", "SPEED_LABEL",
+    "IMAGE_CLAIMS", "MONTE_CARLO", "OUTSIDE", "PAPER_SPEED_S", "PROFILE_CLAIMS", "PROTO_CLAIM",
+    "SPEED_LABEL",
 ]
 
-#: The paper's IDL timings for one detector, 4900 sky bins x 560 time bins (s).
+#: The speed table's key of the Monte Carlo (the other keys are profile models' names).
+MONTE_CARLO = "montecarlo"
+
+#: The paper's IDL timings for one detector, 4900 sky bins x 560 time bins (s), by profile
+#: model (plus the Monte Carlo), in the table's order.
 PAPER_SPEED_S = {
     "standard": 0.8,
     "advanced-g0": 2.6,
     "advanced-approx": 5.4,
     "exact": None,
-    "montecarlo": 1.3 * 86400.0,
+    MONTE_CARLO: 1.3 * 86400.0,
 }
 SPEED_LABEL = {
     "standard": "standard",
     "advanced-g0": "advanced, G0 only",
     "advanced-approx": "advanced, G0 + G1~",
     "exact": "exact (not in the paper)",
-    "montecarlo": "Monte Carlo (SNR 10 per time bin)",
+    MONTE_CARLO: "Monte Carlo (SNR 10 per time bin)",
 }
 
 #: What the paper says about each validation scenario.

@@ -16,11 +16,9 @@ from typing import Any
 import numpy as np
 
 from rotmod.io.atomic import write_text
+from rotmod.paper.selection import VALIDATION_MODELS
 
 __all__ = ["fmt_time", "write_report"]
-
-#: Profile models in the order of the report's columns.
-_MODELS = ("standard", "advanced", "advanced-approx", "advanced-g0", "exact")
 
 
 def _fmt(v: Any, spec: str = ".3g") -> str:
@@ -50,7 +48,7 @@ def _profiles(res: dict[str, Any] | None) -> dict[str, Any] | None:
     rows, blocks = [], []
     for s in res["scenarios"]:
         cells: list[Any] = [(s["name"], s["title"]), s["paper"]]
-        for m in _MODELS:
+        for m in VALIDATION_MODELS:
             if m in s["chi2_dof"]:
                 cells.append((_fmt(s["chi2_dof"][m]), f"max |Δ| {_fmt(s['max_dev'][m], '.3f')}"))
             else:
@@ -63,7 +61,8 @@ def _profiles(res: dict[str, Any] | None) -> dict[str, Any] | None:
         blocks.append({**s, "obtained": obtained, "best": str(best)})
     first = res["scenarios"][0]
     return {"n_photons": first["n_photons"], "n_angles": first["n_angles"],
-            "header": ["scenario", "paper", *_MODELS], "rows": rows, "scenarios": blocks}
+            "header": ["scenario", "paper", *VALIDATION_MODELS], "rows": rows,
+            "scenarios": blocks}
 
 
 def _speed(res: dict[str, Any] | None) -> dict[str, Any] | None:

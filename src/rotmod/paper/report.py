@@ -39,11 +39,13 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod.io.atomic import atomic_dir, atomic_path, write_text
 from rotmod.errors import ParameterError
+from rotmod.io.atomic import atomic_dir, atomic_path, write_text
 from rotmod.materials import PAPER_SIGMA_662
+from rotmod.paper import scenarios, validation
 from rotmod.paper.claims import (
     IMAGE_CLAIMS,
+    MONTE_CARLO,
     OUTSIDE,
     PAPER_SPEED_S,
     PROFILE_CLAIMS,
@@ -52,37 +54,57 @@ from rotmod.paper.claims import (
 )
 from rotmod.paper.page import write_report
 from rotmod.paper.provenance import provenance
+from rotmod.paper.selection import IMAGE_PAIR, REFERENCE_MODEL, SPEED_MODELS, check_registered
+from rotmod.profiles import DEFAULT_COMPARISON, MODELS, get_model
+from rotmod.reconstruction import ALGORITHMS, get_algorithm, reconstruct
+from rotmod.registry import Registry
 
 __all__ = ["SIZES", "STEPS", "ReproduceResult", "reproduce"]
 
 STEPS = ("profiles", "speed", "images", "prototype", "summary")
 
-#: Run sizes.  ``tiny`` is for the test suite (seconds; results not meaningful).
-SIZES: dict[str, dict[str, Any]] = {
+#: The imaging scenarios of the paper's image figures (the prototype is its own step).
+_IMAGE_SCENARIOS = tuple(IMAGE_CLAIMS)
+#: The imaging scenario of the lab prototype.
+_PROTOTYPE = "d"
+
+#: Run sizes by name.  ``tiny`` is for the test suite (seconds; results not meaningful).
+#: The scenarios, models and methods they name are registry names, checked when this module
+#: is imported.
+SIZES: Registry[dict[str, Any]] = Registry("size")
+for _size, _cfg in {
     "tiny": {
         "scenarios": ("thick20", "wide50"), "n_photons": 1500, "n_angles": 72,
         "speed_grid": (20, 20), "speed_bins": 56, "speed_repeats": 1, "mc_photons": 2e5,
-        "image_scenarios": ("a",), "image_size": "small", "image_models": ("standard", "exact"),
-        "methods": ("mlem",), "max_iter": 60, "prototype": False, "bin_mode": "center",
-        "proto_models": (), "proto_methods": (),
+        "image_scenarios": _IMAGE_SCENARIOS[:1], "image_size": "small",
+        "image_models": IMAGE_PAIR, "methods": ("mlem",), "max_iter": 60, "prototype": False,
+        "bin_mode": "center", "proto_models": (), "proto_methods": (),
     },
     "quick": {
         "scenarios": None, "n_photons": 20000, "n_angles": 180,
         "speed_grid": (70, 70), "speed_bins": 560, "speed_repeats": 3, "mc_photons": 2e7,
-        "image_scenarios": ("a", "b", "c"), "image_size": "small",
-        "image_models": ("standard", "advanced", "exact"), "methods": ("mlem",),
+        "image_scenarios": _IMAGE_SCENARIOS, "image_size": "small",
+        "image_models": DEFAULT_COMPARISON, "methods": ("mlem",),
         "max_iter": None, "prototype": True, "bin_mode": "center",
-        "proto_models": ("exact",), "proto_methods": ("mlem", "ncar"),
+        "proto_models": (REFERENCE_MODEL,), "proto_methods": ("mlem", "ncar"),
     },
     "full": {
         "scenarios": None, "n_photons": 200000, "n_angles": 360,
         "speed_grid": (70, 70), "speed_bins": 560, "speed_repeats": 7, "mc_photons": 2e8,
-        "image_scenarios": ("a", "b", "c"), "image_size": "full",
-        "image_models": ("standard", "advanced", "exact"), "methods": ("mlem", "ncar"),
+        "image_scenarios": _IMAGE_SCENARIOS, "image_size": "full",
+        "image_models": DEFAULT_COMPARISON, "methods": ("mlem", "ncar"),
         "max_iter": None, "prototype": True, "bin_mode": "average",
-        "proto_models": ("standard", "advanced", "exact"), "proto_methods": ("mlem", "ncar"),
+        "proto_models": DEFAULT_COMPARISON, "proto_methods": ("mlem", "ncar"),
     },
-}
+}.items():
+    SIZES.register(_size, _cfg)
+    check_registered(validation.SCENARIOS, _cfg["scenarios"] or (), f"SIZES[{_size!r}]")
+    check_registered(MODELS, (*_cfg["image_models"], *_cfg["proto_models"]),
+                     f"SIZES[{_size!r}]")
+    check_registered(ALGORITHMS, (*_cfg["methods"], *_cfg["proto_methods"]),
+                     f"SIZES[{_size!r}]")
+check_registered(scenarios.SCENARIOS, (*_IMAGE_SCENARIOS, _PROTOTYPE), "report scenarios")
+
 
 @dataclass
 class ReproduceResult:
@@ -181,20 +203,17 @@ def _progress(total: int, enabled: bool) -> Any:
 def _step_profiles(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
     import matplotlib.pyplot as plt
 
-    from rotmod.paper.validation import SCENARIOS, plot_scenario, run_scenario
-
-    names = cfg["scenarios"] or tuple(s.name for s in SCENARIOS)
+    names = cfg["scenarios"] or validation.SCENARIOS.names()
     rows = []
     for k, name in enumerate(names):
         log(f"[profiles] scenario {name} ({k + 1}/{len(names)})")
-        r = run_scenario(name, n_photons=cfg["n_photons"], n_angles=cfg["n_angles"],
-                         seed=seed + k)
+        r = validation.run_scenario(name, n_photons=cfg["n_photons"], n_angles=cfg["n_angles"],
+                                    seed=seed + k)
         sc = r.scenario
         fig, axes = plt.subplots(2, 1, figsize=(7.5, 5.2))
-        models = ("standard", "advanced", "exact")
-        plot_scenario(r, detector=0, source=0, models=models, ax=axes[0])
-        plot_scenario(r, detector=len(sc.detectors) - 1, source=len(sc.phi_deg) - 1,
-                      models=models, ax=axes[1])
+        validation.plot_scenario(r, detector=0, source=0, ax=axes[0])
+        validation.plot_scenario(r, detector=len(sc.detectors) - 1,
+                                 source=len(sc.phi_deg) - 1, ax=axes[1])
         fig.tight_layout()
         fig_name = _savefig(fig, tmp / f"profile_{name}.png")
         np.savez_compressed(
@@ -229,7 +248,6 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
 
     from rotmod.geometry import Instrument
     from rotmod.montecarlo import simulate_profiles
-    from rotmod.profiles import MODELS, get_model
     from rotmod.sky import SkyGrid
 
     inst = Instrument.paper(sigma=PAPER_SIGMA_662)  # the paper's timing set-up (its sigma)
@@ -238,11 +256,7 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     n_bins = cfg["speed_bins"]
     xi = (np.arange(n_bins) + 0.5) * (360.0 / n_bins)  # deg
     rows = []
-    for name in ("standard", "advanced-g0", "advanced-approx", "exact"):
-        if name not in MODELS:
-            rows.append({"model": name, "label": SPEED_LABEL[name], "time_s": None,
-                         "paper_s": PAPER_SPEED_S[name], "note": "model not available"})
-            continue
+    for name in SPEED_MODELS:
         log(f"[speed] {name}")
         model = get_model(name)
         t = _median_time(
@@ -268,8 +282,8 @@ def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dic
     # SNR 10 per time bin: 100 transmitted photons per (time bin, sky bin) at the mean
     # transmission, i.e. 100 / mean_p incident photons per cell.
     need = 4900 * 560 * 100.0 / max(mean_p, 1e-9)
-    rows.append({"model": "montecarlo", "label": SPEED_LABEL["montecarlo"],
-                 "time_s": need / rate, "paper_s": PAPER_SPEED_S["montecarlo"],
+    rows.append({"model": MONTE_CARLO, "label": SPEED_LABEL[MONTE_CARLO],
+                 "time_s": need / rate, "paper_s": PAPER_SPEED_S[MONTE_CARLO],
                  "note": f"estimated: {need:.3g} photons at the measured "
                          f"{rate:.3g} photons/s ({n_total:.3g} photons in {dt:.2f} s; "
                          f"mean transmission {mean_p:.3f})"})
@@ -288,14 +302,12 @@ def _image_case(
 
     from rotmod.errors import ModelValidityError
     from rotmod.io.images import write_image
-    from rotmod.paper.scenarios import make_scenario
     from rotmod.plotting.images import plot_comparison
-    from rotmod.reconstruction import ALGORITHMS, reconstruct
     from rotmod.reconstruction.metrics import evaluate
     from rotmod.response import TimeBinning, build_response
 
     log(f"[{prefix}] scenario {name}: Monte Carlo observation")
-    sc = make_scenario(name, cfg["image_size"], seed=seed)
+    sc = scenarios.make_scenario(name, cfg["image_size"], seed=seed)
     tb = sc.time_bins
     if cfg["bin_mode"] == "center":
         tb = TimeBinning(sc.time_bins.n_bins, "center")
@@ -318,10 +330,8 @@ def _image_case(
             out["results"].append({"model": model, "skipped": str(exc).split(";")[0]})
             continue
         for method in cfg["methods"]:
-            if method not in ALGORITHMS:
-                continue
             kw = dict(sc.reconstruct_kwargs)
-            if sc.stopping is not None and method != "backprojection":
+            if sc.stopping is not None and get_algorithm(method).iterative:
                 kw["stopping"] = sc.stopping
             if cfg["max_iter"]:
                 kw["max_iter"] = cfg["max_iter"]
@@ -355,7 +365,7 @@ def _step_images(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> di
         case = _image_case(tmp, name, cfg, seed + k, log, prefix="image")
         case["claim"] = IMAGE_CLAIMS[name]
         cases.append(case)
-    skipped = [n for n in ("a", "b", "c") if n not in cfg["image_scenarios"]]
+    skipped = [n for n in _IMAGE_SCENARIOS if n not in cfg["image_scenarios"]]
     return {"cases": cases, "not_run": skipped}
 
 
@@ -363,7 +373,7 @@ def _step_prototype(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) ->
     if not cfg["prototype"]:
         return {"not_run": "the tiny run skips the prototype case"}
     pcfg = {**cfg, "image_models": cfg["proto_models"], "methods": cfg["proto_methods"]}
-    case = _image_case(tmp, "d", pcfg, seed, log, prefix="prototype")
+    case = _image_case(tmp, _PROTOTYPE, pcfg, seed, log, prefix="prototype")
     case["claim"] = PROTO_CLAIM
     return {"case": case}
 
@@ -389,8 +399,8 @@ def _step_summary(out: Path, tmp: Path, log: Callable) -> dict[str, Any]:
             if f.exists():
                 d = np.load(f)
                 keys = [k for k in d.files if "|" in k]
-                std = [k for k in keys if k.startswith("standard|")]
-                exa = [k for k in keys if k.startswith("exact|")]
+                std = [k for k in keys if k.startswith(f"{IMAGE_PAIR[0]}|")]
+                exa = [k for k in keys if k.startswith(f"{IMAGE_PAIR[1]}|")]
                 if std and exa:
                     imgs = (case, d, std[0], exa[0])
                     break
@@ -400,7 +410,7 @@ def _step_summary(out: Path, tmp: Path, log: Callable) -> dict[str, Any]:
     if prof is not None:
         name, d = prof
         models = {m[6:]: d[m] for m in d.files if m.startswith("model_")
-                  and m[6:] in ("standard", "advanced", "exact")}
+                  and m[6:] in DEFAULT_COMPARISON}
         plot_profiles(d["xi"] * u.rad, models, mc=d["mc"], mc_error=d["mc_err"], ax=ax0,
                       title=f"profile: Monte Carlo vs models, scenario {name}")
     else:
@@ -465,8 +475,7 @@ def reproduce(
     -------
     ReproduceResult
     """
-    if size not in SIZES:
-        raise ParameterError(f"size must be one of {sorted(SIZES)}, got {size!r}")
+    cfg = SIZES.get(size)
     chosen = list(STEPS) if steps is None else list(steps)
     bad = [s for s in chosen if s not in STEPS]
     if bad:
@@ -489,7 +498,6 @@ def reproduce(
     _write_json(marker, {"size": size, "seed": seed, "provenance": prov})
     for stale in out.glob(".*.tmp-*"):
         shutil.rmtree(stale, ignore_errors=True)
-    cfg = SIZES[size]
     t0 = time.perf_counter()
     results: dict[str, dict[str, Any]] = {}
     fns: dict[str, Callable[[Path], dict[str, Any]]] = {

@@ -1,15 +1,16 @@
 """The seed paper's validation scenarios, and every profile model checked against the MC.
 
-Scenarios (:data:`SCENARIOS`) reproduce the paper's Sec. 4 set-ups (lead, rho = 11.34
+Scenarios (the registry :data:`SCENARIOS`) reproduce the paper's Sec. 4 set-ups (lead, rho = 11.34
 g/cm3, sigma = 0.103 cm2/g at 662 keV, L = 100 cm) where the paper leaves the detector
 position, azimuth and (for Figs. 5-7) thickness and zenith open, the values here are our
 choice and are stated per scenario.  Each scenario has an on-axis and an off-axis detector
 and two source azimuths.  Four further scenarios lie outside the advanced model's validity
 (``a < h tan theta``, ``b < h tan theta``, rays crossing two slats).
 
-:func:`run_scenario` simulates the Monte Carlo and evaluates every registered model that
-applies (a model raising :class:`~rotmod.errors.ModelValidityError` is skipped and the
-reason recorded), and returns chi-square per model.  The chi-square uses each model's own
+:func:`run_scenario` simulates the Monte Carlo and evaluates every compared model
+(:data:`rotmod.paper.selection.VALIDATION_MODELS`) that applies (a model raising
+:class:`~rotmod.errors.ModelValidityError` is skipped and the reason recorded), and returns
+chi-square per model.  The chi-square uses each model's own
 binomial variance ``P (1 - P) / N``, with ``P`` clipped to ``[1/(2N), 1 - 1/(2N)]`` so a
 cell that a model calls impossible (``P = 0``) but the MC populates counts heavily
 instead of infinitely.
@@ -28,7 +29,9 @@ from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import PAPER_SIGMA_662, Material
 from rotmod.montecarlo import MCProfiles, simulate_profiles
-from rotmod.profiles import MODELS, get_model
+from rotmod.paper.selection import REFERENCE_MODEL, VALIDATION_MODELS
+from rotmod.profiles import DEFAULT_COMPARISON, MODELS, get_model
+from rotmod.registry import Registry
 
 __all__ = [
     "SCENARIOS",
@@ -39,10 +42,6 @@ __all__ = [
     "plot_scenario",
     "run_scenario",
 ]
-
-#: Models compared, in table order.
-DEFAULT_MODELS = ("exact", "advanced", "advanced-approx", "advanced-g0", "standard")
-
 
 @dataclass(frozen=True)
 class Scenario:
@@ -104,7 +103,9 @@ class Scenario:
         return np.asarray(self.phi_deg, dtype=float) * u.deg
 
 
-SCENARIOS: tuple[Scenario, ...] = (
+#: The validation scenarios by name, in the report's order.
+SCENARIOS: Registry[Scenario] = Registry("scenario")
+for _s in (
     Scenario("thick20", "a=b=c=4, h=20 cm, theta=6 deg (shadow lengthening)",
              4, 4, 4, 20.0, 6.0, paper="Fig. 4"),
     Scenario("wide50", "a=b=c=4, h=1 cm, theta=50 deg (clipping, low contrast)",
@@ -127,7 +128,8 @@ SCENARIOS: tuple[Scenario, ...] = (
              2, 2, 4, 10.0, 30.0, paper="outside advanced validity", advanced_valid=False),
     Scenario("thick45", "a=b=c=4, h=10 cm, theta=45 deg (h tan theta > a + b)",
              4, 4, 4, 10.0, 45.0, paper="outside advanced validity", advanced_valid=False),
-)
+):
+    SCENARIOS.register(_s.name, _s)
 
 
 def get_scenario(name: str) -> Scenario:
@@ -136,12 +138,9 @@ def get_scenario(name: str) -> Scenario:
     Raises
     ------
     ParameterError
-        Unknown name; the message lists the known ones.
+        Unknown name; the message lists the known ones and suggests the closest.
     """
-    for s in SCENARIOS:
-        if s.name == name:
-            return s
-    raise ParameterError(f"scenario must be one of {[s.name for s in SCENARIOS]}, got {name!r}")
+    return SCENARIOS.get(name)
 
 
 def chi_square(model: np.ndarray, counts: np.ndarray, n_photons: int) -> tuple[float, float]:
@@ -210,7 +209,7 @@ def run_scenario(
     *,
     n_photons: int = 100_000,
     n_angles: int = 360,
-    models: tuple[str, ...] = DEFAULT_MODELS,
+    models: tuple[str, ...] = VALIDATION_MODELS,
     seed: Any = 0,
 ) -> ScenarioResult:
     """Run the Monte Carlo and every applicable model for one scenario.
@@ -224,7 +223,8 @@ def run_scenario(
     n_angles : int
         Mask angles, evenly spaced over one turn.
     models : tuple of str
-        Registry names of the models to compare (unregistered ones are skipped).
+        Registry names of the models to compare, default the validation's selection
+        (unregistered ones are skipped).
     seed : int, SeedSequence, Generator or None
         Monte Carlo seed.
 
@@ -255,7 +255,7 @@ def run_scenario(
         res.chi2[name], res.dof[name] = chi_square(P, mc.counts, mc.n_photons)
         res.chi2_dof[name] = res.chi2[name] / max(res.dof[name], 1.0)
         res.max_dev[name] = float(np.max(np.abs(P - mc.fraction)))
-    ref = res.profiles.get("exact", mc.fraction)
+    ref = res.profiles.get(REFERENCE_MODEL, mc.fraction)
     off = ref + 0.005 * np.sign(0.5 - ref + 1e-300)
     shifted, _ = chi_square(off, np.round(ref * mc.n_photons), mc.n_photons)
     _, dof = chi_square(ref, mc.counts, mc.n_photons)
@@ -268,7 +268,7 @@ def plot_scenario(
     *,
     detector: int = 0,
     source: int = 0,
-    models: tuple[str, ...] = ("standard", "advanced", "exact"),
+    models: tuple[str, ...] = DEFAULT_COMPARISON,
     ax: Any = None,
 ) -> Any:
     """Draw MC vs models for one detector and source, like the paper's profile figures.

@@ -9,9 +9,11 @@ import numpy as np
 
 from rotmod._validate import as_angle
 
-__all__ = ["MODEL_STYLE", "plot_profiles"]
+__all__ = ["MODEL_STYLE", "model_style", "plot_profiles"]
 
-#: Line styles of the models, shared by every profile figure.
+#: Line styles of the models, shared by every profile figure.  A curve whose name is not a
+#: key here gets a style of its own from :data:`_OTHER_STYLES` (:func:`model_style`), so a
+#: new model needs no edit here.
 MODEL_STYLE: dict[str, dict[str, Any]] = {
     "standard": {"color": "tab:blue", "ls": "--"},
     "advanced": {"color": "tab:red", "ls": "-"},
@@ -19,6 +21,37 @@ MODEL_STYLE: dict[str, dict[str, Any]] = {
     "advanced-g0": {"color": "tab:purple", "ls": ":"},
     "exact": {"color": "k", "ls": "-", "lw": 0.8},
 }
+#: Styles for the other curves, in turn: colours none of :data:`MODEL_STYLE` uses (the
+#: plain colour cycle would repeat the standard model's blue).
+_OTHER_STYLES: tuple[dict[str, Any], ...] = (
+    {"color": "tab:green", "ls": "-"},
+    {"color": "tab:brown", "ls": "--"},
+    {"color": "tab:pink", "ls": "-."},
+    {"color": "tab:olive", "ls": ":"},
+    {"color": "tab:cyan", "ls": "-"},
+)
+
+
+def model_style(name: str, other: int = 0) -> dict[str, Any]:
+    """The line style of the curve ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A model name (or any curve label).
+    other : int
+        For a name without a style in :data:`MODEL_STYLE`: how many such curves the figure
+        has drawn before it (they take the fallback styles in turn, cycling).
+
+    Returns
+    -------
+    dict
+        Matplotlib line keywords (a copy).
+    """
+    style = MODEL_STYLE.get(name)
+    if style is None:
+        style = _OTHER_STYLES[other % len(_OTHER_STYLES)]
+    return dict(style)
 
 
 def plot_profiles(
@@ -74,8 +107,10 @@ def plot_profiles(
             e = np.asarray(mc_error, dtype=float)
             ax.fill_between(deg, f - e, f + e, color="0.6", lw=0, step="mid", alpha=0.6)
         ax.plot(deg, f, ".", ms=2.0, color="0.3", label="Monte Carlo")
+    others = 0
     for name, p in profiles.items():
-        style = MODEL_STYLE.get(name, {})
+        style = model_style(name, others)
+        others += name not in MODEL_STYLE
         label = (labels or {}).get(name, name)
         ax.plot(deg, np.asarray(p, dtype=float), label=label, **style)
         if rax is not None:

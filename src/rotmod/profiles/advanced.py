@@ -293,7 +293,6 @@ class AdvancedModel(ProfileModel):
     With ``g1="exact"`` it equals the exact model there (to ~1e-12).
     """
 
-    name = "advanced"
     _NAMES: ClassVar[dict[str, str]] = {
         "exact": "advanced",
         "approx": "advanced-approx",
@@ -328,7 +327,7 @@ class AdvancedModel(ProfileModel):
                     "use the 'exact' model for this geometry"
                 )
 
-    def _evaluate(
+    def evaluate(
         self,
         instrument: Instrument,
         geom: ProjectedGeometry,

@@ -33,8 +33,10 @@ from rotmod._validate import as_angle, as_distance, as_float_dtype
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
+from rotmod.registry import Registry
 
 __all__ = [
+    "DEFAULT_COMPARISON",
     "DEFAULT_MODEL",
     "MODELS",
     "ProfileModel",
@@ -166,11 +168,41 @@ def project(
 class ProfileModel(ABC):
     """A characteristic-profile model.
 
-    Subclasses implement :meth:`_evaluate` (the vectorised kernel) and, if the model has a
-    limited domain, :meth:`check_validity`.  Call instances as ``model.profile(...)``.
+    Call instances as ``model.profile(...)``; the response layer calls :meth:`evaluate` on
+    blocks of its own.
+
+    Notes
+    -----
+    A new model is one subclass and its registration, nothing else::
+
+        @register_model("my-model")
+        class MyModel(ProfileModel):
+            def evaluate(self, instrument, geom, cos_xi, sin_xi, out):
+                out[...] = ...  # P[d, t, n], in place
+
+    after which :func:`get_model`, :meth:`profile`, the responses
+    (``build_response(..., model="my-model")``) and the command line take it by name (the
+    paper's report compares its own selection, :mod:`rotmod.paper.selection`).  The
+    subclass implements :meth:`evaluate`, the extension point:
+
+    * ``geom`` is the :class:`ProjectedGeometry` of the sources, already validated: per
+      detector and source the crossing point ``X, Y`` (shape ``(n_det, n_src)``), per
+      source ``Sx, Sy, tau, theta, phi`` (shape ``(n_src,)``), the slats' ``mu``, the
+      detector ``positions`` and the source ``distance`` (``inf``: at infinity).  It may
+      describe a subset of the instrument's detectors and sources (the response layer
+      evaluates blocks): size the loops by ``out``, not by ``instrument``.
+    * ``cos_xi, sin_xi`` are 1-D arrays of the ``n_angle`` mask angles' cosines and sines.
+    * ``out`` is a C-contiguous float32 or float64 array of shape ``(n_det, n_angle,
+      n_src)``, allocated by the caller and filled *in place* (no return value); every
+      element must be written (it is not zeroed first).
+
+    If the model has a limited domain it overrides :meth:`check_validity`; a model of the
+    instrument as built sets :attr:`handles_as_built`; a model of an asymmetric mask sets
+    :attr:`half_turn_symmetric` to False.
     """
 
-    #: Registry name.
+    #: Registry name (set by :func:`register_model`; a class registered with parameters
+    #: names its variants' instances itself).
     name: ClassVar[str] = ""
     #: ``P(xi + pi) = P(xi)``: a half turn maps the mask onto itself (the slat pattern is
     #: symmetric about the gap on the rotation axis, docs/conventions.md), so the response
@@ -228,7 +260,7 @@ class ProfileModel(ABC):
                      f"profiles of {n_det} detectors x {xi.size} angles x {geom.theta.size} "
                      "sources", hint="ask for fewer angles or sources at a time")
         out = np.empty((len(instrument.detectors), xi.size, geom.theta.size), dtype=dt)
-        self._evaluate(instrument, geom, np.cos(xi), np.sin(xi), out)
+        self.evaluate(instrument, geom, np.cos(xi), np.sin(xi), out)
         return out
 
     def validate(self, instrument: Instrument, geom: ProjectedGeometry) -> None:
@@ -258,7 +290,7 @@ class ProfileModel(ABC):
         """Raise :class:`~rotmod.errors.ModelValidityError` outside the model's domain."""
 
     @abstractmethod
-    def _evaluate(
+    def evaluate(
         self,
         instrument: Instrument,
         geom: ProjectedGeometry,
@@ -266,32 +298,58 @@ class ProfileModel(ABC):
         sin_xi: np.ndarray,
         out: np.ndarray,
     ) -> None:
-        """Fill ``out[d, t, n]`` in place."""
+        """Fill ``out[d, t, n]`` with the profiles, in place (the kernel; class Notes).
+
+        Parameters
+        ----------
+        instrument : Instrument
+        geom : ProjectedGeometry
+            The sources' projected geometry (validated by :meth:`validate`).
+        cos_xi, sin_xi : ndarray, shape (n_angle,)
+            Cosines and sines of the mask angles.
+        out : ndarray, shape (n_det, n_angle, n_src)
+            C-contiguous float32 or float64; every element is written.
+        """
 
     def describe(self) -> dict[str, Any]:
         """Parameters that identify this model (for metadata)."""
         return {"model": self.name}
 
 
-MODELS: dict[str, Callable[[], ProfileModel]] = {}
+#: The profile models by name: each entry makes an instance (a class, or a class with bound
+#: parameters).  Filled by :func:`register_model` where each model is defined.
+MODELS: Registry[Callable[[], ProfileModel]] = Registry("model")
 
 #: The model every entry point uses when none is named (API, command line, report): the exact
 #: model is valid for every geometry, and within the advanced model's domain it costs about
 #: the same (docs/physics.md).
 DEFAULT_MODEL = "exact"
 
+#: The models compared when none are named (``rotmod profile``, the report's profile
+#: figures): the paper's standard and advanced models and the exact one.
+DEFAULT_COMPARISON: tuple[str, ...] = ("standard", "advanced", "exact")
+
 _M = TypeVar("_M", bound=type[ProfileModel])
 
 
 def register_model(name: str, **params: Any) -> Callable[[_M], _M]:
-    """Class decorator registering a :class:`ProfileModel` under ``name``.
+    """Class decorator registering a :class:`ProfileModel` under ``name`` in :data:`MODELS`.
 
     ``params`` are passed to the class on :func:`get_model`, so one class can be registered
-    under several names (``@register_model("advanced-approx", g1="approx")``).
+    under several names (``@register_model("advanced-approx", g1="approx")``).  Without
+    ``params`` the class takes ``name`` as its :attr:`ProfileModel.name`.
+
+    Raises
+    ------
+    ParameterError
+        ``name`` is empty or registered already.
     """
 
     def deco(cls: _M) -> _M:
-        MODELS[name] = functools.partial(cls, **params) if params else cls
+        MODELS.register(name, functools.partial(cls, **params) if params else cls)
+        if not params:
+            # The name is written once, here: messages and metadata read it from the class.
+            cls.name = name
         return cls
 
     return deco
@@ -303,13 +361,8 @@ def get_model(model: str | ProfileModel) -> ProfileModel:
     Raises
     ------
     ParameterError
-        Unknown name; the message lists the registered ones.
+        Unknown name; the message lists the registered ones and suggests the closest.
     """
     if isinstance(model, ProfileModel):
         return model
-    try:
-        return MODELS[model]()
-    except KeyError:
-        raise ParameterError(
-            f"model must be one of {sorted(MODELS)}, got {model!r}"
-        ) from None
+    return MODELS.get(model)()

@@ -28,10 +28,9 @@ class ExactModel(ProfileModel):
     :mod:`rotmod.profiles._asbuilt` (docs/physics.md, "The instrument as built").
     """
 
-    name = "exact"
     handles_as_built = True
 
-    def _evaluate(
+    def evaluate(
         self,
         instrument: Instrument,
         geom: ProjectedGeometry,

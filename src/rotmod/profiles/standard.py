@@ -124,8 +124,6 @@ class StandardModel(ProfileModel):
     :class:`~rotmod.errors.ModelValidityError`; use ``"advanced"`` or ``"exact"`` there.
     """
 
-    name = "standard"
-
     #: Relative tolerance for ``a = b = c``.
     equality_rtol = 1e-9
 
@@ -155,7 +153,7 @@ class StandardModel(ProfileModel):
                 "the slats a thickness, or mu = inf for the paper's thin opaque mask"
             )
 
-    def _evaluate(
+    def evaluate(
         self,
         instrument: Instrument,
         geom: ProjectedGeometry,

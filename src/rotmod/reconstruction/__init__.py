@@ -5,10 +5,13 @@
 
 Algorithms use only the response's ``forward``, ``adjoint`` and ``sensitivity``.  See
 ``docs/reconstruction.md``.
+
+Each solver class registers itself in :data:`ALGORITHMS` where it is defined
+(:func:`register_algorithm`); the imports below of every solver module, whose classes this
+package exports, are what fill the registry.  A new algorithm is one module with a
+registered :class:`Reconstructor` subclass, imported here.
 """
 
-from rotmod.reconstruction import algorithms as _algorithms  # noqa: F401  (registers)
-from rotmod.reconstruction import sgp as _sgp  # noqa: F401  (registers)
 from rotmod.reconstruction.algorithms import MART, MLEM, NCAR, OSEM, SIRT, BackProjection
 from rotmod.reconstruction.api import reconstruct
 from rotmod.reconstruction.base import (

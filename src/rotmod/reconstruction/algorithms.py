@@ -46,6 +46,7 @@ class BackProjection(Reconstructor):
     signed (side lobes are negative).  One forward and two adjoints; no iterations.
     """
 
+    iterative = False
     defaults: ClassVar[dict[str, Any]] = {"scale": "fit"}
 
     def _check_params(self) -> None:

@@ -12,7 +12,7 @@ import numpy as np
 
 from rotmod._validate import as_int
 from rotmod.errors import ParameterError
-from rotmod.reconstruction.base import ReconstructionResult, get_algorithm
+from rotmod.reconstruction.base import ReconstructionResult, Reconstructor, get_algorithm
 from rotmod.reconstruction.bootstrap import bootstrap_images
 from rotmod.response.operator import ResponseOperator
 
@@ -26,7 +26,7 @@ DEFAULT_METHOD = "ncar"
 def reconstruct(
     response: ResponseOperator,
     data: Any,
-    method: str | None = None,
+    method: str | type[Reconstructor] | None = None,
     *,
     uncertainty: str | None = None,
     n_boot: int = 20,
@@ -41,9 +41,9 @@ def reconstruct(
     response : ResponseOperator
     data : PoissonData, FoldedProfiles or ndarray
         Folded counts (and exposure, background; see :class:`Reconstructor`).
-    method : str, optional
-        A name in ``ALGORITHMS`` (``"backprojection"``, ``"mlem"``, ``"osem"``, ``"mart"``,
-        ``"sirt"``, ``"sgp"``, ``"sparse"``, ``"ncar"``); default :data:`DEFAULT_METHOD`.
+    method : str or Reconstructor subclass, optional
+        A name in :data:`~rotmod.reconstruction.base.ALGORITHMS` (``ALGORITHMS.names()``
+        lists them) or a solver class; default :data:`DEFAULT_METHOD`.
     uncertainty : {None, "bootstrap"}
         ``"bootstrap"`` adds a per-pixel one-sigma map from ``n_boot`` reconstructions of
         Poisson re-draws of the data (same method and parameters).

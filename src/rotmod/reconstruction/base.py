@@ -24,6 +24,7 @@ from rotmod._validate import as_int
 from rotmod.errors import ParameterError
 from rotmod.reconstruction.data import ForwardModel, PoissonData, as_data
 from rotmod.reconstruction.stats import chi2, deviance
+from rotmod.registry import Registry
 from rotmod.response.operator import ResponseOperator
 
 __all__ = [
@@ -212,36 +213,41 @@ def _check_bins_match(response: ResponseOperator, data: Any) -> None:
         )
 
 
-ALGORITHMS: dict[str, type[Reconstructor]] = {}
+#: The reconstruction algorithms by name (the ``method`` of :func:`reconstruct`).  Filled by
+#: :func:`register_algorithm` where each solver class is defined; the package imports those
+#: modules (and exports their classes) explicitly.
+ALGORITHMS: Registry[type[Reconstructor]] = Registry("method")
 
 
 def register_algorithm(name: str) -> Callable[[type[Reconstructor]], type[Reconstructor]]:
-    """Class decorator registering a :class:`Reconstructor` under ``name``."""
+    """Class decorator registering a :class:`Reconstructor` under ``name`` in
+    :data:`ALGORITHMS` (and naming the class ``name``).
+
+    Raises
+    ------
+    ParameterError
+        ``name`` is empty or registered already.
+    """
 
     def deco(cls: type[Reconstructor]) -> type[Reconstructor]:
+        ALGORITHMS.register(name, cls)
         cls.name = name
-        ALGORITHMS[name] = cls
         return cls
 
     return deco
 
 
 def get_algorithm(method: str | type[Reconstructor]) -> type[Reconstructor]:
-    """The solver class registered as ``method``.
+    """The solver class registered as ``method`` (a solver class passes through).
 
     Raises
     ------
     ParameterError
-        Unknown name (the message lists the registered ones).
+        Unknown name (the message lists the registered ones and suggests the closest).
     """
     if isinstance(method, type) and issubclass(method, Reconstructor):
         return method
-    try:
-        return ALGORITHMS[method]  # type: ignore[index]
-    except (KeyError, TypeError):
-        raise ParameterError(
-            f"method must be one of {sorted(ALGORITHMS)}, got {method!r}"
-        ) from None
+    return ALGORITHMS.get(method)
 
 
 def _image_shape(response: Any, grid: Any, n_sky: int) -> tuple[tuple[int, ...], Any]:
@@ -279,6 +285,9 @@ class Reconstructor(ABC):
     """
 
     name: ClassVar[str] = ""
+    #: Whether the method iterates (and so obeys a :class:`StoppingRule`); a direct method
+    #: (back-projection) computes its image in one go.
+    iterative: ClassVar[bool] = True
     #: Algorithm parameters and their defaults.
     defaults: ClassVar[dict[str, Any]] = {}
     #: Default stopping rule.

@@ -134,13 +134,13 @@ class ResponsePlan:
             out = np.empty(shape, dtype=self.dtype)
         xi = self.time_bins.sub_angles(t0, t1)
         if xi.shape[0] == 1:
-            self.model._evaluate(self.instrument, geom, np.cos(xi[0]), np.sin(xi[0]), out)
+            self.model.evaluate(self.instrument, geom, np.cos(xi[0]), np.sin(xi[0]), out)
             return out
         # Bin average: accumulate the sub-samples in float64, then scale and cast once.
         acc = np.zeros(shape)
         tmp = np.empty(shape)
         for row in xi:
-            self.model._evaluate(self.instrument, geom, np.cos(row), np.sin(row), tmp)
+            self.model.evaluate(self.instrument, geom, np.cos(row), np.sin(row), tmp)
             acc += tmp
         np.multiply(acc, 1.0 / xi.shape[0], out=out, casting="unsafe")
         return out

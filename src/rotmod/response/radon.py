@@ -578,7 +578,7 @@ class RadonResponse(ResponseOperator):
                 geom = ProjectedGeometry(uc, np.zeros_like(uc), h * w, zeros_w, taus,
                                          zeros_w, zeros_w, mu)
                 out = np.empty((j1 - j0, 1, n_w))
-                model._evaluate(self.instrument, geom, one, zero, out)
+                model.evaluate(self.instrument, geom, one, zero, out)
                 table[j0:j1, :, r] = out[:, 0, :]
         for j in range(half, n_x):
             table[j] = table[n_x - j, ::-1]

@@ -260,11 +260,12 @@ def test_half_turn_symmetry(inst, grid):
     # at every bin centre (the mask maps onto itself under a half turn).  Odd N: no pair of
     # bins is half a turn apart, all are computed.  The whole-turn comparison in
     # test_columns_equal_model_profile covers the same for 48 bins.
+    from rotmod.response import ResponseSpec
     from rotmod.response._plan import make_plan
 
     theta, phi = grid.directions()
     for n_bins, distinct in ((20, 10), (15, 15)):
-        plan = make_plan(inst, grid, n_bins, "exact", dtype=np.float64)
+        plan = make_plan(ResponseSpec(inst, grid, n_bins, "exact", dtype=np.float64))
         assert plan.n_distinct == distinct
         ref = get_model("exact").profile(inst, rad(theta), rad(phi),
                                          rad(TimeBinning(n_bins).angles()))
@@ -277,7 +278,7 @@ def test_half_turn_symmetry(inst, grid):
     class Asymmetric(type(get_model("exact"))):
         half_turn_symmetric = False
 
-    assert make_plan(inst, grid, 20, Asymmetric()).n_distinct == 20
+    assert make_plan(ResponseSpec(inst, grid, 20, Asymmetric())).n_distinct == 20
 
 
 def test_other_models_build(inst, grid):

@@ -268,6 +268,10 @@ class ProfileModel(ABC):
     ) -> None:
         """Fill ``out[d, t, n]`` in place."""
 
+    # TEMP alias until the registry branch renames _evaluate
+    def evaluate(self, *args: Any, **kwargs: Any) -> None:
+        return self._evaluate(*args, **kwargs)
+
     def describe(self) -> dict[str, Any]:
         """Parameters that identify this model (for metadata)."""
         return {"model": self.name}

@@ -217,3 +217,23 @@ def test_a_second_writer_is_refused_and_a_later_run_recovers(tmp_path, inst, gri
         write_response(path, inst, grid, 20)
     # The lock dies with its holder: the next run goes ahead.
     assert write_response(path, inst, grid, 20).n_time == 20
+
+
+def test_every_operator_is_stored_by_its_store_kind(tmp_path, inst, grid, ref):
+    from rotmod.response import STORE_KINDS, MatrixFreeResponse, RadonResponse
+
+    assert STORE_KINDS.names() == ("dense", "radon")
+    assert ref.store_kind == "dense" and RadonResponse.store_kind == "radon"
+    free = MatrixFreeResponse(inst, grid, 20, "advanced-approx", dtype=np.float32)
+    a = save_response(tmp_path / "free.zarr", free, chunks=(6, 20))
+    b = save_response(tmp_path / "ref.zarr", ref, chunks=(6, 20))
+    assert isinstance(a, StoredResponse) and a.spec is not None
+    np.testing.assert_array_equal(a.materialise().matrix, b.materialise().matrix)
+    # A stored response saves again (its blocks are read from the first store).
+    c = save_response(tmp_path / "copy.zarr", b, chunks=(7, 9))
+    np.testing.assert_array_equal(c.materialise().matrix, ref.matrix)
+    assert c.metadata() == b.metadata()
+    with pytest.warns(DeprecationWarning, match="load"):
+        np.testing.assert_array_equal(c.load().matrix, ref.matrix)
+    with pytest.raises(ParameterError, match="already exists; pass overwrite=True"):
+        save_response(tmp_path / "copy.zarr", b)

@@ -422,8 +422,7 @@ def test_response_layer_keeps_or_drops_the_half_turn():
     # true for an offset and tilted axis (the 16-bin response equals the model at all 16
     # bin centres, so the repeated half is right), false for an asymmetric pattern (every
     # bin computed).
-    from rotmod.response import build_response
-    from rotmod.response import ResponseSpec
+    from rotmod.response import ResponseSpec, build_response
     from rotmod.response._plan import make_plan
     from rotmod.sky import SkyGrid
 

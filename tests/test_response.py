@@ -305,7 +305,8 @@ def test_spec_validates_once_and_round_trips(inst, grid):
     assert spec.model.describe() == get_model("advanced-approx").describe()
     assert spec.dtype == np.float64 and spec.energy == 662.0 and spec.distance is None
     back = ResponseSpec.from_dict(spec.to_dict())
-    assert back.to_dict() == spec.to_dict()
+    assert back == spec and back.to_dict() == spec.to_dict()
+    assert spec.replace(energy=511.0) != spec
     back.matches(spec)  # the same response: no error
     spec.matches(spec.to_dict())
     with pytest.raises(InstrumentMismatchError, match=r"time_bins\.n_bins is 12 in the store "

@@ -127,6 +127,16 @@ class ResponseSpec:
                             ("energy", e), ("model", mdl), ("distance", dist)):
             object.__setattr__(self, name, value)
 
+    def __eq__(self, other: object) -> bool:
+        # Equal when they describe the same response (the fields' descriptions, exactly);
+        # :meth:`matches` is the tolerant comparison that names what differs.
+        if not isinstance(other, ResponseSpec):
+            return NotImplemented
+        return self.to_dict() == other.to_dict()
+
+    # Unhashable, like its description (nested dicts) that equality compares.
+    __hash__ = None  # type: ignore[assignment]
+
     @property
     def shape(self) -> tuple[int, int, int]:
         """``(n_det, n_time, n_sky)`` of the response."""

@@ -1,8 +1,10 @@
 """Evaluation of blocks of the response ``P[d, t, n]`` with the per-source geometry reused.
 
-A :class:`ResponsePlan` holds everything a block needs (model, instrument, projected
-geometry of every sky pixel, time binning, dtype) and is picklable, so Dask workers can
-evaluate blocks from it.  The profile kernels fill ``out[d, t, n]`` of whatever shape they
+A :class:`ResponsePlan` is a :class:`~rotmod.response.ResponseSpec` (model, instrument,
+grid, time binning, energy, distance, dtype) plus the projected geometry of every sky pixel:
+everything a block needs, picklable, so Dask workers can evaluate blocks from it.  The
+half-turn symmetry (:attr:`ResponsePlan.n_distinct`) is applied by :func:`repeat_half_turn`
+and :func:`fold_half_turn`, the one copy and its adjoint.  The profile kernels fill ``out[d, t, n]`` of whatever shape they
 are given, so a block over detectors ``d0:d1``, bins ``t0:t1`` and pixels ``n0:n1`` is one
 kernel call on the sliced geometry (``n_sub`` calls in ``"average"`` mode).
 """

@@ -4,9 +4,10 @@ A :class:`ResponsePlan` is a :class:`~rotmod.response.ResponseSpec` (model, inst
 grid, time binning, energy, distance, dtype) plus the projected geometry of every sky pixel:
 everything a block needs, picklable, so Dask workers can evaluate blocks from it.  The
 half-turn symmetry (:attr:`ResponsePlan.n_distinct`) is applied by :func:`repeat_half_turn`
-and :func:`fold_half_turn`, the one copy and its adjoint.  The profile kernels fill ``out[d, t, n]`` of whatever shape they
-are given, so a block over detectors ``d0:d1``, bins ``t0:t1`` and pixels ``n0:n1`` is one
-kernel call on the sliced geometry (``n_sub`` calls in ``"average"`` mode).
+and :func:`fold_half_turn`, the one copy and its adjoint.  The profile kernels fill
+``out[d, t, n]`` of whatever shape they are given, so a block over detectors ``d0:d1``, bins
+``t0:t1`` and pixels ``n0:n1`` is one kernel call on the sliced geometry (``n_sub`` calls in
+``"average"`` mode).
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from rotmod.errors import ParameterError
+from rotmod.errors import ParameterError, RotmodError
 from rotmod.io import response_store as fmt
 from rotmod.io.atomic import check_overwrite
 from rotmod.registry import Registry
@@ -96,13 +96,20 @@ class StoredResponse(BlockwiseResponse):
         self.n_det, self.n_time, self.n_sky = (int(v) for v in array.shape)
         self.dtype = np.dtype(array.dtype)
         try:
-            self._adopt(ResponseSpec.from_dict(meta))
+            spec = ResponseSpec.from_dict(meta)
         except ParameterError:
             # Metadata that does not describe a whole spec (a matrix from elsewhere, or a
             # model this rotmod does not know): keep what it does describe.
             fields = restore_fields(meta)
             for k in ("instrument", "grid", "time_bins", "model", "energy", "distance"):
                 setattr(self, k, fields[k])
+        else:
+            if spec.shape != tuple(array.shape) or spec.dtype != self.dtype:
+                raise RotmodError(
+                    f"response store {str(path)!r}: its metadata describes a {spec.shape} "
+                    f"{spec.dtype} response, array P is {tuple(array.shape)} {self.dtype}; "
+                    "rebuild it")
+            self._adopt(spec)
         # Products walk the stored chunks (every bin is stored: no half turn to fold).
         self.blocks = block_grid(tuple(array.shape), tuple(array.chunks[1:]))
 

@@ -12,7 +12,7 @@ from scipy.sparse.linalg import lsqr
 
 from conftest import rad
 from rotmod import DetectorArray, Instrument
-from rotmod.errors import ModelValidityError, ParameterError
+from rotmod.errors import InstrumentMismatchError, ModelValidityError, ParameterError
 from rotmod.materials import PAPER_SIGMA_662
 from rotmod.profiles import get_model
 from rotmod.response import (
@@ -260,11 +260,12 @@ def test_half_turn_symmetry(inst, grid):
     # at every bin centre (the mask maps onto itself under a half turn).  Odd N: no pair of
     # bins is half a turn apart, all are computed.  The whole-turn comparison in
     # test_columns_equal_model_profile covers the same for 48 bins.
+    from rotmod.response import ResponseSpec
     from rotmod.response._plan import make_plan
 
     theta, phi = grid.directions()
     for n_bins, distinct in ((20, 10), (15, 15)):
-        plan = make_plan(inst, grid, n_bins, "exact", dtype=np.float64)
+        plan = make_plan(ResponseSpec(inst, grid, n_bins, "exact", dtype=np.float64))
         assert plan.n_distinct == distinct
         ref = get_model("exact").profile(inst, rad(theta), rad(phi),
                                          rad(TimeBinning(n_bins).angles()))
@@ -277,7 +278,7 @@ def test_half_turn_symmetry(inst, grid):
     class Asymmetric(type(get_model("exact"))):
         half_turn_symmetric = False
 
-    assert make_plan(inst, grid, 20, Asymmetric()).n_distinct == 20
+    assert make_plan(ResponseSpec(inst, grid, 20, Asymmetric())).n_distinct == 20
 
 
 def test_other_models_build(inst, grid):
@@ -292,3 +293,81 @@ def test_other_models_build(inst, grid):
 def test_block_size_errors(inst, grid):
     with pytest.raises(ParameterError, match="block_size"):
         MatrixFreeResponse(inst, grid, 8, block_size=(0, 4))
+
+
+# ------------------------------------------------------------------------ response spec
+def test_spec_validates_once_and_round_trips(inst, grid):
+    from rotmod.response import ResponseSpec
+
+    spec = ResponseSpec(inst, grid, 12, "advanced-approx", 662.0, dtype="float64",
+                        detectors=[2, 0])
+    assert spec.shape == (2, 12, grid.size) and spec.time_bins == TimeBinning(12)
+    assert spec.model.describe() == get_model("advanced-approx").describe()
+    assert spec.dtype == np.float64 and spec.energy == 662.0 and spec.distance is None
+    back = ResponseSpec.from_dict(spec.to_dict())
+    assert back == spec and back.to_dict() == spec.to_dict()
+    assert spec.replace(energy=511.0) != spec
+    back.matches(spec)  # the same response: no error
+    spec.matches(spec.to_dict())
+    with pytest.raises(InstrumentMismatchError, match=r"time_bins\.n_bins is 12 in the store "
+                                                      r"but 14 here"):
+        spec.replace(time_bins=14).matches(spec)
+    with pytest.raises(InstrumentMismatchError, match=r"energy is 662\.0 in the store but 511\.0"):
+        spec.replace(energy=511.0).matches(spec)
+    # The messages every operator gave before the spec existed.
+    for kwargs, message in (
+        ({"instrument": "paper"}, "instrument must be an Instrument, got str"),
+        ({"grid": 3}, "grid must be a sky grid"),
+        ({"time_bins": 0}, "time_bins"),
+        ({"dtype": "int32"}, "dtype must be float32 or float64"),
+        ({"detectors": [7]}, r"detectors must be indices in \[0, 6\]"),
+        ({"energy": -1.0}, "energy"),
+        ({"model": "nope"}, "model"),
+    ):
+        args = {"instrument": inst, "grid": grid, "time_bins": 12, **kwargs}
+        with pytest.raises(ParameterError, match=message):
+            ResponseSpec(**args)
+
+
+def test_every_builder_takes_one_spec(inst, grid):
+    from rotmod.response import RadonResponse, ResponseSpec
+
+    spec = ResponseSpec(inst, grid, 12, "advanced-approx", dtype=np.float64)
+    ref = build_response(inst, grid, 12, "advanced-approx", dtype=np.float64)
+    by_spec = build_response(spec)
+    assert by_spec.spec is spec and by_spec.metadata() == ref.metadata()
+    np.testing.assert_array_equal(by_spec.matrix, ref.matrix)
+    free = MatrixFreeResponse(spec, block_size=(5, 30))
+    assert free.spec is spec
+    np.testing.assert_array_equal(free.materialise().matrix, ref.matrix)
+    with pytest.raises(ParameterError, match=r"either a ResponseSpec or its fields.*dtype"):
+        build_response(spec, dtype=np.float32)
+    with pytest.raises(ParameterError, match="exact model"):
+        RadonResponse(spec)
+
+
+def test_block_and_materialise_are_the_same_values_for_every_operator(inst, grid, mat):
+    from rotmod.response.operator import ResponseOperator
+
+    class Columns(ResponseOperator):
+        """Only forward and adjoint: block and materialise come from the defaults."""
+
+        def __init__(self, matrix):
+            self.m = matrix
+            self.n_det, self.n_time, self.n_sky = matrix.shape
+
+        def _forward(self, sky):
+            return self.m @ sky
+
+        def _adjoint(self, counts):
+            return np.einsum("dtn,dt->n", self.m, counts)
+
+    free = MatrixFreeResponse(inst, grid, 48, "advanced-approx", block_size=(7, 20))
+    # (As test_matrix_free_equals_materialised: other kernel-call shapes, 1e-14.)
+    for op in (mat, free, Columns(mat.matrix)):
+        np.testing.assert_allclose(op.block(t=(3, 40), n=(5, 61)), mat.matrix[:, 3:40, 5:61],
+                                   rtol=0, atol=1e-14)
+        np.testing.assert_allclose(op.materialise().matrix, mat.matrix, rtol=0, atol=1e-14)
+    assert mat.materialise() is mat
+    with pytest.warns(DeprecationWarning, match="todense"):
+        assert mat.todense() is mat.matrix

@@ -9,9 +9,8 @@ import pytest
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import ParameterError
 from rotmod.materials import PAPER_SIGMA_662
-from rotmod.response import MatrixFreeResponse, RadonResponse, build_response
+from rotmod.response import MatrixFreeResponse, RadonResponse, build_response, write_response
 from rotmod.response.parallel import get_client
-from rotmod.response.stored import write_response
 from rotmod.sky import SkyGrid
 
 
@@ -50,7 +49,7 @@ def test_distributed_equals_local(cluster, tmp_path):
     np.testing.assert_array_equal(mf_dist.adjoint(y), mf_local.adjoint(y))
 
     stored = write_response(tmp_path / "d.zarr", inst, grid, 30, client=client, chunks=(7, 25))
-    np.testing.assert_array_equal(stored.load().matrix, local.matrix)
+    np.testing.assert_array_equal(stored.materialise().matrix, local.matrix)
 
 
 def test_radon_distributed_equals_local(cluster):

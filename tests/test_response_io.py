@@ -10,9 +10,10 @@ import pytest
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import InstrumentMismatchError, ParameterError, RotmodError
 from rotmod.materials import PAPER_SIGMA_662
-from rotmod.response import TimeBinning, build_response
-from rotmod.response.stored import (
+from rotmod.response import (
     StoredResponse,
+    TimeBinning,
+    build_response,
     load_response,
     open_response,
     save_response,
@@ -134,12 +135,12 @@ def test_interrupted_write_resumes(tmp_path, inst, grid):
     assert not partial.exists()
     # Chunked vs one-call evaluation: the kernels may round the last float64 bit
     # differently (SIMD lanes), which can flip one float32 ulp (<= 6e-8 for values <= 1).
-    np.testing.assert_allclose(out.load().matrix, full.matrix, rtol=0, atol=6e-8)
+    np.testing.assert_allclose(out.materialise().matrix, full.matrix, rtol=0, atol=6e-8)
 
 
 def test_write_response_matches_build(tmp_path, inst, grid, ref):
     out = write_response(tmp_path / "a.zarr", inst, grid, 20, "advanced-approx", progress=False)
-    np.testing.assert_allclose(out.load().matrix, ref.matrix, rtol=0, atol=6e-8)  # as above
+    np.testing.assert_allclose(out.materialise().matrix, ref.matrix, rtol=0, atol=6e-8)  # as above
     with pytest.raises(ParameterError, match="already exists"):
         write_response(tmp_path / "a.zarr", inst, grid, 20)
 
@@ -173,7 +174,7 @@ def test_a_deleted_chunk_in_a_partial_store_is_recomputed(tmp_path, inst, grid):
     resumed = []
     out = write_response(path, inst, grid, tb, on_chunk=lambda d, t: resumed.append(d))
     assert len(resumed) == 13  # 12 never written + the deleted one
-    m = out.load().matrix
+    m = out.materialise().matrix
     import zarr
 
     assert np.all(np.isfinite(m)) and zarr.open_group(str(path)).attrs["complete"] is True
@@ -197,7 +198,7 @@ def test_a_damaged_chunk_is_an_error_naming_store_and_chunk(tmp_path, inst, grid
     with pytest.raises(RotmodError, match=r"response store .*x\.zarr.*chunk t 10:20, n 0:42"):
         resp.forward(np.ones(resp.n_sky))
     with pytest.raises(RotmodError, match="rebuild it"):
-        resp.load()
+        resp.materialise()
 
 
 def test_damaged_metadata_is_a_clear_error(tmp_path, inst, grid):
@@ -216,3 +217,23 @@ def test_a_second_writer_is_refused_and_a_later_run_recovers(tmp_path, inst, gri
         write_response(path, inst, grid, 20)
     # The lock dies with its holder: the next run goes ahead.
     assert write_response(path, inst, grid, 20).n_time == 20
+
+
+def test_every_operator_is_stored_by_its_store_kind(tmp_path, inst, grid, ref):
+    from rotmod.response import STORE_KINDS, MatrixFreeResponse, RadonResponse
+
+    assert STORE_KINDS.names() == ("dense", "radon")
+    assert ref.store_kind == "dense" and RadonResponse.store_kind == "radon"
+    free = MatrixFreeResponse(inst, grid, 20, "advanced-approx", dtype=np.float32)
+    a = save_response(tmp_path / "free.zarr", free, chunks=(6, 20))
+    b = save_response(tmp_path / "ref.zarr", ref, chunks=(6, 20))
+    assert isinstance(a, StoredResponse) and a.spec is not None
+    np.testing.assert_array_equal(a.materialise().matrix, b.materialise().matrix)
+    # A stored response saves again (its blocks are read from the first store).
+    c = save_response(tmp_path / "copy.zarr", b, chunks=(7, 9))
+    np.testing.assert_array_equal(c.materialise().matrix, ref.matrix)
+    assert c.metadata() == b.metadata()
+    with pytest.warns(DeprecationWarning, match="load"):
+        np.testing.assert_array_equal(c.load().matrix, ref.matrix)
+    with pytest.raises(ParameterError, match="already exists; pass overwrite=True"):
+        save_response(tmp_path / "copy.zarr", b)

@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     from rotmod.io import read_folded
     from rotmod.io.images import write_image
-    from rotmod.response.stored import open_response
+    from rotmod.response import StoredResponse, open_response
 
     src = check_input(args.folded, "folded profiles")
     rsp = check_input(args.response, "response")
@@ -79,8 +79,8 @@ def run(args: argparse.Namespace) -> int:
             f"{rsp}: the response has {response.n_time} time bins but {src} has "
             f"{folded.n_bins}; fold with --bins {response.n_time} or rebuild the response"
         )
-    if hasattr(response, "load"):
-        response = response.load()  # a stored matrix: products from memory
+    if isinstance(response, StoredResponse):
+        response = response.materialise()  # a stored matrix: products from memory
     kw: dict[str, Any] = {}
     if args.max_iter is not None:
         kw["max_iter"] = args.max_iter

@@ -87,8 +87,7 @@ def parse_pair(text: str, option: str = "--center", names: str = "X,Y") -> tuple
 
 
 def run(args: argparse.Namespace) -> int:
-    from rotmod.response import RadonResponse, TimeBinning
-    from rotmod.response.stored import save_response, write_response
+    from rotmod.response import RadonResponse, TimeBinning, save_response, write_response
     from rotmod.sky import SkyGrid
 
     args.model = registered(MODELS, args.model or DEFAULT_MODEL, "--model")

@@ -1,63 +1,85 @@
 """Evaluation of blocks of the response ``P[d, t, n]`` with the per-source geometry reused.
 
-A :class:`ResponsePlan` holds everything a block needs (model, instrument, projected
-geometry of every sky pixel, time binning, dtype) and is picklable, so Dask workers can
-evaluate blocks from it.  The profile kernels fill ``out[d, t, n]`` of whatever shape they
-are given, so a block over detectors ``d0:d1``, bins ``t0:t1`` and pixels ``n0:n1`` is one
-kernel call on the sliced geometry (``n_sub`` calls in ``"average"`` mode).
+A :class:`ResponsePlan` is a :class:`~rotmod.response.ResponseSpec` (model, instrument,
+grid, time binning, energy, distance, dtype) plus the projected geometry of every sky pixel:
+everything a block needs, picklable, so Dask workers can evaluate blocks from it.  The
+half-turn symmetry (:attr:`ResponsePlan.n_distinct`) is applied by :func:`repeat_half_turn`
+and :func:`fold_half_turn`, the one copy and its adjoint.  The profile kernels fill
+``out[d, t, n]`` of whatever shape they are given, so a block over detectors ``d0:d1``, bins
+``t0:t1`` and pixels ``n0:n1`` is one kernel call on the sliced geometry (``n_sub`` calls in
+``"average"`` mode).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 
-from rotmod._validate import as_distance, as_float_dtype, as_scalar
-from rotmod.errors import ParameterError
+from rotmod.binning import TimeBinning
 from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
-from rotmod.profiles.base import (
-    DEFAULT_MODEL,
-    ProfileModel,
-    ProjectedGeometry,
-    get_model,
-    project,
-)
-from rotmod.binning import TimeBinning
+from rotmod.profiles.base import ProfileModel, ProjectedGeometry, project
+from rotmod.response.spec import ResponseSpec
 
-__all__ = ["ResponsePlan", "check_response_inputs", "make_plan"]
+__all__ = ["ResponsePlan", "distinct_bins", "fold_half_turn", "make_plan", "repeat_half_turn"]
 
 
-def _select_detectors(instrument: Instrument, detectors: Any) -> Instrument:
-    if detectors is None:
-        return instrument
-    idx = np.atleast_1d(np.asarray(detectors))
-    n = len(instrument.detectors)
-    if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer):
-        raise ParameterError(f"detectors must be a non-empty list of indices, got {detectors!r}")
-    if np.any(idx < 0) or np.any(idx >= n):
-        raise ParameterError(f"detectors must be indices in [0, {n - 1}], got {idx.tolist()}")
-    det = instrument.detectors.with_positions(instrument.detectors.positions[idx])
-    return Instrument(instrument.mask, det, instrument.rotation_period)
+def distinct_bins(n_bins: int, symmetric: bool = True) -> int:
+    """Number of leading time bins that determine all ``n_bins``: ``n_bins / 2`` when a half
+    turn maps the instrument and the model onto themselves and ``n_bins`` is even (bin
+    ``t + N/2`` is then bin ``t`` turned by exactly half a turn), else ``n_bins``."""
+    return n_bins // 2 if n_bins % 2 == 0 and symmetric else n_bins
+
+
+def repeat_half_turn(out: np.ndarray, n_distinct: int) -> np.ndarray:
+    """Fill the bins (axis 1) after the first ``n_distinct`` with copies of the first ones,
+    ``out[:, t + N/2] = out[:, t]`` (a response ``P[d, t, n]`` or forward rates ``[d, t]``);
+    in place, returned for convenience.  Nothing to do when every bin is distinct."""
+    nt = out.shape[1]
+    if n_distinct < nt:
+        out[:, n_distinct:] = out[:, : nt - n_distinct]
+    return out
+
+
+def fold_half_turn(counts: np.ndarray, n_distinct: int) -> np.ndarray:
+    """The adjoint of :func:`repeat_half_turn` on data ``(n_det, n_time)``: bins ``t`` and
+    ``t + N/2`` share a response, so ``P^T Y = P_h^T (Y[:, :h] + Y[:, h:])``."""
+    if n_distinct < counts.shape[1]:
+        return counts[:, :n_distinct] + counts[:, n_distinct:]
+    return counts
 
 
 @dataclass(frozen=True)
 class ResponsePlan:
-    """Inputs of a response computation; :meth:`block` evaluates any sub-block of ``P``.
+    """A :class:`~rotmod.response.ResponseSpec` with every sky pixel projected once;
+    :meth:`block` evaluates any sub-block of ``P``.
 
     Build with :func:`make_plan`.
     """
 
-    model: ProfileModel
-    instrument: Instrument
-    grid: Any
-    time_bins: TimeBinning
-    energy: float | None
-    dtype: np.dtype
+    spec: ResponseSpec
     geom: ProjectedGeometry
-    distance: float | None = None
+
+    @property
+    def model(self) -> ProfileModel:
+        return self.spec.model
+
+    @property
+    def instrument(self) -> Instrument:
+        return self.spec.instrument
+
+    @property
+    def time_bins(self) -> TimeBinning:
+        return self.spec.time_bins
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.spec.dtype
+
+    @property
+    def distance(self) -> float | None:
+        return self.spec.distance
 
     @property
     def p_max(self) -> float:
@@ -90,9 +112,8 @@ class ResponsePlan:
         ``t + N/2`` is bin ``t`` turned by exactly half a turn (sub-samples included), so
         ``P[:, t + N/2] = P[:, t]`` and only the first ``N/2`` bins are computed.
         """
-        n = self.time_bins.n_bins
         symmetric = self.model.half_turn_symmetric and self.instrument.mask.half_turn_symmetric
-        return n // 2 if n % 2 == 0 and symmetric else n
+        return distinct_bins(self.time_bins.n_bins, symmetric)
 
     def _sub_geometry(self, d0: int, d1: int, n0: int, n1: int) -> ProjectedGeometry:
         g = self.geom
@@ -146,77 +167,19 @@ class ResponsePlan:
         return out
 
 
-def check_response_inputs(
-    instrument: Instrument,
-    grid: Any,
-    time_bins: Any,
-    energy: Any,
-    *,
-    dtype: Any,
-    detectors: Any,
-) -> tuple[Instrument, TimeBinning, float | None, np.dtype]:
-    """Validate what every response operator is computed from.
-
-    Returns the instrument (restricted to ``detectors``), the time binning, the energy (keV
-    or ``None``) and the dtype.
+def make_plan(spec: ResponseSpec) -> ResponsePlan:
+    """Project every sky pixel of ``spec`` once and check the model's domain.
 
     Raises
     ------
-    ParameterError
+    MaterialError, ModelValidityError, MemoryBudgetError
     """
-    if not isinstance(instrument, Instrument):
-        raise ParameterError(f"instrument must be an Instrument, got {type(instrument).__name__}")
-    if not hasattr(grid, "directions") or not hasattr(grid, "size"):
-        raise ParameterError(
-            f"grid must be a sky grid (e.g. SkyGrid) with directions(), got {type(grid).__name__}"
-        )
-    tb = TimeBinning.coerce(time_bins)
-    dt = as_float_dtype(dtype)
-    inst = _select_detectors(instrument, detectors)
-    e = None if energy is None else as_scalar(energy, "energy", _kev(), lo=0.0, lo_open=True)
-    return inst, tb, e, dt
-
-
-def make_plan(
-    instrument: Instrument,
-    grid: Any,
-    time_bins: Any,
-    model: str | ProfileModel = DEFAULT_MODEL,
-    energy: Any = None,
-    *,
-    dtype: Any = np.float32,
-    detectors: Any = None,
-    distance: Any = None,
-) -> ResponsePlan:
-    """Validate the inputs of a response and project every sky pixel once.
-
-    Parameters are those of :func:`rotmod.response.build_response`; ``distance`` (cm, one
-    value) puts every pixel's source at that distance from the origin (a lab field),
-    ``None`` at infinity.
-
-    Raises
-    ------
-    ParameterError, MaterialError, ModelValidityError
-    """
-    inst, tb, e, dt = check_response_inputs(
-        instrument, grid, time_bins, energy, dtype=dtype, detectors=detectors
-    )
-    mdl = get_model(model)
+    inst, grid = spec.instrument, spec.grid
     # Pixel directions and the projected geometry: ~(2 n_det + 6) float64 per pixel.
     check_memory(8.0 * grid.size * (2 * len(inst.detectors) + 6),
                  f"projecting {grid.size} sky pixels for {len(inst.detectors)} detectors",
                  hint="use larger pixels or a smaller field")
-    dist = None
-    if distance is not None:
-        d = as_distance(distance, 1)
-        dist = None if np.isinf(d[0]) else float(d[0])
     theta, phi = grid.directions()
-    geom = project(inst, theta, phi, e, dist)
-    mdl.validate(inst, geom)
-    return ResponsePlan(mdl, inst, grid, tb, e, dt, geom, dist)
-
-
-def _kev() -> Any:
-    from rotmod.conventions import ENERGY_UNIT
-
-    return ENERGY_UNIT
+    geom = project(inst, theta, phi, spec.energy, spec.distance)
+    spec.model.validate(inst, geom)
+    return ResponsePlan(spec, geom)

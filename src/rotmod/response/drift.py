@@ -19,6 +19,7 @@ one Radon product per interval.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -26,11 +27,10 @@ import numpy as np
 from rotmod.errors import ParameterError
 from rotmod.events.folding import exposure_per_bin
 from rotmod.limits import check_memory
-from rotmod.profiles.base import DEFAULT_MODEL, get_model
-from rotmod.binning import TimeBinning
 from rotmod.response.materialised import MaterialisedResponse, build_response
 from rotmod.response.operator import ResponseOperator
 from rotmod.response.radon import RadonResponse
+from rotmod.response.spec import ResponseSpec, as_spec
 
 __all__ = ["DriftResponse", "drift_response"]
 
@@ -44,18 +44,25 @@ class DriftResponse(ResponseOperator):
         One per attitude interval, all of the same shape.
     weights : ndarray, shape (n_parts, n_time)
         ``exposure_k[t] / sum_k exposure_k[t]`` (0 where a bin has no exposure).
+    spec : ResponseSpec, optional
+        What the sum is the response of (the image grid); default: the first part's
+        metadata, without a grid.
 
     Notes
     -----
     ``forward(S) = sum_k w_k[t] P_k S`` and ``adjoint(Y) = sum_k P_k^T (w_k[t] Y)``.
     """
 
-    def __init__(self, parts: list[ResponseOperator], weights: np.ndarray) -> None:
+    def __init__(self, parts: list[ResponseOperator], weights: np.ndarray,
+                 spec: ResponseSpec | None = None) -> None:
         if not parts:
             raise ParameterError("parts must hold at least one response operator")
         first = parts[0]
         self.parts = parts
         self.weights = np.asarray(weights, dtype=np.float64)
+        if spec is not None:
+            self._adopt(spec)
+            return
         self.n_det, self.n_time, self.n_sky = first.n_det, first.n_time, first.n_sky
         self.dtype = first.dtype
         self.instrument, self.time_bins = first.instrument, first.time_bins
@@ -78,14 +85,14 @@ class DriftResponse(ResponseOperator):
 
 def drift_response(
     instrument: Any,
-    grid: Any,
-    time_bins: Any,
-    intervals: list[tuple[float, float, Any]],
-    model: Any = DEFAULT_MODEL,
+    grid: Any = None,
+    time_bins: Any = None,
+    intervals: list[tuple[float, float, Any]] | None = None,
+    model: Any = None,
     energy: Any = None,
     *,
     start_phase: Any = 0.0,
-    dtype: Any = np.float64,
+    dtype: Any = None,
     operator: str = "matrix",
     tolerance: float = 1e-4,
 ) -> ResponseOperator:
@@ -93,14 +100,16 @@ def drift_response(
 
     Parameters
     ----------
-    instrument : Instrument
+    instrument : Instrument or ResponseSpec
+        The instrument, or a whole :class:`~rotmod.response.ResponseSpec` (on the image
+        grid; then give ``intervals`` by name and no other field).
     grid : CelestialGrid
         The image grid; its attitude is replaced by each interval's.
     time_bins : int or TimeBinning
     intervals : list of (t_lo, t_hi, Attitude)
         E.g. :meth:`rotmod.sky.AttitudeTable.intervals`; times in s.
     model, energy, dtype
-        As for :func:`~rotmod.response.build_response`.
+        As for :func:`~rotmod.response.build_response` (``dtype`` default float64).
     start_phase : float or Quantity
         Mask angle at ``t = 0`` (deg if plain), as in the event list.
     operator : {"matrix", "radon"}
@@ -114,38 +123,38 @@ def drift_response(
     -------
     MaterialisedResponse or DriftResponse
     """
-    import dataclasses
-
-    tb = TimeBinning.coerce(time_bins)
+    spec = as_spec(instrument, grid, time_bins, model, energy, dtype=dtype,
+                   default_dtype=np.float64)
+    tb, grid, inst = spec.time_bins, spec.grid, spec.instrument
     if operator not in ("matrix", "radon"):
         raise ParameterError(f"operator must be 'matrix' or 'radon', got {operator!r}")
     if not intervals:
         raise ParameterError("intervals must hold at least one attitude interval")
-    weights = np.array([exposure_per_bin([[lo, hi]], tb.n_bins, instrument.rotation_period,
+    weights = np.array([exposure_per_bin([[lo, hi]], tb.n_bins, inst.rotation_period,
                                          start_phase) for lo, hi, _ in intervals])
     total = weights.sum(axis=0)
+
+    def at(att: Any, **changes: Any) -> ResponseSpec:
+        """The spec of one interval: the grid at its attitude."""
+        return spec.replace(grid=dataclasses.replace(grid, attitude=att), **changes)
+
     if operator == "radon":
-        if get_model(model).name != "exact":
+        if spec.model.name != "exact":
             raise ParameterError(f"model: operator 'radon' factorises the exact model, got "
-                                 f"{model!r}")
+                                 f"{spec.model.name!r}")
         with np.errstate(invalid="ignore", divide="ignore"):
             norm = np.where(total > 0, weights / total, 0.0)
-        parts: list[ResponseOperator] = [
-            RadonResponse(instrument, dataclasses.replace(grid, attitude=att), tb, energy,
-                          tolerance=tolerance, dtype=dtype) for _, _, att in intervals]
-        op = DriftResponse(parts, norm)
-        op.grid = grid
-        return op
-    n_det = len(instrument.detectors)
+        parts: list[ResponseOperator] = [RadonResponse(at(att), tolerance=tolerance)
+                                         for _, _, att in intervals]
+        return DriftResponse(parts, norm, spec)
+    n_det = len(inst.detectors)
     check_memory(2 * 8.0 * n_det * tb.n_bins * grid.size,
                  f"a drift response of {n_det} x {tb.n_bins} x {grid.size}",
                  hint="use fewer pixels or time bins")
     acc = np.zeros((n_det, tb.n_bins, grid.size))
     for w, (_, _, att) in zip(weights, intervals, strict=True):
-        part = build_response(instrument, dataclasses.replace(grid, attitude=att), tb, model,
-                              energy, dtype=np.float64)
+        part = build_response(at(att, dtype=np.float64))
         acc += w[None, :, None] * part.matrix
     with np.errstate(invalid="ignore", divide="ignore"):
         matrix = np.where(total[None, :, None] > 0, acc / total[None, :, None], 0.0)
-    return MaterialisedResponse(matrix.astype(dtype), instrument=instrument, grid=grid,
-                                time_bins=tb, model=part.model, energy=part.energy)
+    return MaterialisedResponse(matrix.astype(spec.dtype), spec=spec)

@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
 
+from rotmod.binning import TimeBinning
 from rotmod.errors import ParameterError
+from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
-from rotmod.profiles.base import DEFAULT_MODEL, ProfileModel
-from rotmod.response._plan import ResponsePlan, make_plan
+from rotmod.profiles.base import ProfileModel, get_model
+from rotmod.response._plan import ResponsePlan, make_plan, repeat_half_turn
 from rotmod.response.operator import ResponseOperator
+from rotmod.response.parallel import block_grid, compute_blocks, iter_blocks
+from rotmod.response.spec import ResponseSpec, as_spec
 
 __all__ = ["MaterialisedResponse", "build_response"]
 
@@ -23,15 +28,17 @@ class MaterialisedResponse(ResponseOperator):
     matrix : ndarray, shape (n_det, n_time, n_sky)
         The response, float32 or float64 (other types are refused; the array is used as
         is, without a copy, when it is C-contiguous).
+    spec : ResponseSpec, optional
+        What the matrix was computed for (its shape and dtype must be the spec's).
     instrument, grid, time_bins, model, energy, distance : optional
-        What the matrix was computed for (metadata only; see
+        Without a spec, what is known of it (metadata only; see
         :meth:`ResponseOperator.metadata`).  ``model`` may be a registry name or instance;
         ``distance`` (cm) of a lab field's sources.
 
     Raises
     ------
     ParameterError
-        If ``matrix`` is not a 3-D float32/float64 array.
+        If ``matrix`` is not a 3-D float32/float64 array, or does not fit the metadata.
 
     Notes
     -----
@@ -44,6 +51,7 @@ class MaterialisedResponse(ResponseOperator):
         self,
         matrix: np.ndarray,
         *,
+        spec: ResponseSpec | None = None,
         instrument: Any = None,
         grid: Any = None,
         time_bins: Any = None,
@@ -57,6 +65,16 @@ class MaterialisedResponse(ResponseOperator):
         if m.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
             raise ParameterError(f"matrix must be float32 or float64, got {m.dtype}")
         self.matrix = np.ascontiguousarray(m)
+        if spec is not None:
+            loose = (instrument, grid, time_bins, model, energy, distance)
+            if any(v is not None for v in loose):
+                raise ParameterError("pass either spec or instrument, grid, time_bins, model, "
+                                     "energy, distance, not both")
+            if spec.shape != m.shape or spec.dtype != m.dtype:
+                raise ParameterError(f"matrix must have the spec's shape {spec.shape} and dtype "
+                                     f"{spec.dtype}, got {m.shape} {m.dtype}")
+            self._adopt(spec)
+            return
         self.n_det, self.n_time, self.n_sky = (int(v) for v in m.shape)
         self.dtype = m.dtype
         _set_metadata(self, instrument, grid, time_bins, model, energy)
@@ -88,8 +106,22 @@ class MaterialisedResponse(ResponseOperator):
             out += y[k] @ self.matrix[d]
         return out
 
+    def block(
+        self, t: tuple[int, int] | None = None, n: tuple[int, int] | None = None
+    ) -> np.ndarray:
+        """``P[:, t0:t1, n0:n1]`` (a view of :attr:`matrix`; ``None`` = whole axis)."""
+        t0, t1 = (0, self.n_time) if t is None else t
+        n0, n1 = (0, self.n_sky) if n is None else n
+        return self.matrix[:, t0:t1, n0:n1]
+
+    def materialise(self) -> MaterialisedResponse:
+        """This response (it is in memory already)."""
+        return self
+
     def todense(self) -> np.ndarray:
-        """The matrix ``P[d, t, n]`` (no copy)."""
+        """Deprecated: use ``materialise().matrix`` (or :attr:`matrix`)."""
+        warnings.warn("MaterialisedResponse.todense() is deprecated; use .matrix",
+                      DeprecationWarning, stacklevel=2)
         return self.matrix
 
 
@@ -102,10 +134,6 @@ def _set_metadata(
     energy: Any,
 ) -> None:
     """Check the shapes implied by the metadata against the operator and attach it."""
-    from rotmod.geometry import Instrument
-    from rotmod.profiles.base import get_model
-    from rotmod.binning import TimeBinning
-
     if instrument is not None:
         if not isinstance(instrument, Instrument):
             raise ParameterError(
@@ -141,26 +169,26 @@ def _fill(plan: ResponsePlan, out: np.ndarray, *, max_block_bytes: int = 64 << 2
         return
     if plan.time_bins.n_sub == 1:
         # One detector at a time straight into ``out`` (out[d] is C-contiguous), so the
-        # only memory is the matrix itself.
+        # only memory is the matrix itself: not a walk over (t, n) blocks, which would
+        # need a temporary per block.
         for d in range(nd):
             plan.block(d=(d, d + 1), t=(0, half), out=out[d : d + 1, :half])
     else:
         # Average mode keeps two float64 temporaries per block: bound them by time blocks.
         step = max(1, max_block_bytes // max(16 * nd * nn, 1))
-        for t0 in range(0, half, step):
-            t1 = min(half, t0 + step)
-            out[:, t0:t1, :] = plan.block(t=(t0, t1))
-    out[:, half:, :] = out[:, : nt - half, :]
+        for _, ((t0, t1), _), p in iter_blocks(plan, block_grid((nd, half, nn), (step, nn))):
+            out[:, t0:t1, :] = p
+    repeat_half_turn(out, half)
 
 
 def build_response(
     instrument: Any,
-    grid: Any,
-    time_bins: Any,
-    model: str | ProfileModel = DEFAULT_MODEL,
+    grid: Any = None,
+    time_bins: Any = None,
+    model: str | ProfileModel | None = None,
     energy: Any = None,
     *,
-    dtype: Any = np.float32,
+    dtype: Any = None,
     detectors: Any = None,
     scheduler: str | None = None,
     client: Any = None,
@@ -172,18 +200,22 @@ def build_response(
 
     Parameters
     ----------
-    instrument : Instrument
+    instrument : Instrument or ResponseSpec
+        The instrument; or a whole :class:`~rotmod.response.ResponseSpec` (then ``grid``,
+        ``time_bins``, ``model``, ``energy``, ``dtype``, ``detectors`` and ``distance``
+        are not given).
     grid : SkyGrid
         Sky pixels; ``n`` runs over ``grid.directions()`` (C order).
     time_bins : TimeBinning or int
         Mask-angle binning (an int means that many centre-mode bins).
-    model : str or ProfileModel
+    model : str or ProfileModel, optional
         Registry name (``"standard"``, ``"advanced"``, ``"advanced-approx"``,
-        ``"advanced-g0"``, ``"exact"``) or an instance.
+        ``"advanced-g0"``, ``"exact"``) or an instance; default
+        :data:`~rotmod.profiles.DEFAULT_MODEL` (``"exact"``).
     energy : float or Quantity, optional
         Photon energy (keV); needed unless the mask's attenuation is fixed.
-    dtype : {float32, float64}
-        Storage type of the matrix (the kernels compute in float64).
+    dtype : {float32, float64}, optional
+        Storage type of the matrix (default float32; the kernels compute in float64).
     detectors : sequence of int, optional
         Indices of the detectors to include (default all); the response's ``instrument``
         then holds only those detectors, in that order.
@@ -207,8 +239,9 @@ def build_response(
     ------
     ParameterError, MaterialError, ModelValidityError
     """
-    plan = make_plan(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors,
-                     distance=distance)
+    spec = as_spec(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors,
+                   distance=distance, default_dtype=np.float32)
+    plan = make_plan(spec)
     d, t, n = plan.shape
     check_memory(float(d) * t * n * plan.dtype.itemsize,
                  f"a response matrix of {d} detectors x {t} time bins x {n} pixels "
@@ -218,18 +251,8 @@ def build_response(
     if scheduler is None and client is None and not progress:
         _fill(plan, out)
     else:
-        from rotmod.response.parallel import compute_blocks
-
         compute_blocks(
             plan, out, scheduler=scheduler, client=client, progress=progress,
             block_size=block_size,
         )
-    return MaterialisedResponse(
-        out,
-        instrument=plan.instrument,
-        grid=grid,
-        time_bins=plan.time_bins,
-        model=plan.model,
-        energy=plan.energy,
-        distance=plan.distance,
-    )
+    return MaterialisedResponse(out, spec=spec)

@@ -10,23 +10,31 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+import rotmod
 from rotmod.errors import ParameterError
+from rotmod.response._plan import fold_half_turn, repeat_half_turn
+from rotmod.response.parallel import Block, block_grid, iter_blocks
+from rotmod.response.spec import ResponseSpec, describe
 
 if TYPE_CHECKING:
     from scipy.sparse.linalg import LinearOperator
 
-__all__ = ["ResponseOperator"]
+    from rotmod.response.materialised import MaterialisedResponse
+
+__all__ = ["BlockwiseResponse", "ResponseOperator"]
 
 
 class ResponseOperator(ABC):
     """Abstract response ``P``: sky vectors ``(n_sky,)`` to folded rates ``(n_det, n_time)``.
 
-    Subclasses set :attr:`n_det`, :attr:`n_time`, :attr:`n_sky` and implement
-    :meth:`_forward` and :meth:`_adjoint`.
+    Subclasses set :attr:`n_det`, :attr:`n_time`, :attr:`n_sky` (or adopt a
+    :class:`~rotmod.response.ResponseSpec`, :meth:`_adopt`) and implement :meth:`_forward`
+    and :meth:`_adjoint`; :meth:`block` and :meth:`materialise` have defaults built on
+    :meth:`forward` that subclasses replace with something faster.
 
     Notes
     -----
@@ -49,6 +57,26 @@ class ResponseOperator(ABC):
     energy: float | None = None
     #: Distance of the sources (cm) for a lab field; ``None``: at infinity.
     distance: float | None = None
+    #: What the response was computed from (``None`` for a matrix from elsewhere); the
+    #: attributes above are its fields, and :meth:`metadata` describes it.
+    spec: ResponseSpec | None = None
+    #: How :func:`~rotmod.response.save_response` stores this operator: a name in
+    #: :data:`rotmod.response.stored.STORE_KINDS` ("dense": the values ``P``, in chunks).
+    store_kind: ClassVar[str] = "dense"
+
+    def _adopt(self, spec: ResponseSpec) -> None:
+        """Take the shape, dtype and metadata attributes from ``spec``."""
+        self.spec = spec
+        self.n_det, self.n_time, self.n_sky = spec.shape
+        self.dtype = spec.dtype
+        self.instrument, self.grid, self.time_bins = spec.instrument, spec.grid, spec.time_bins
+        self.model, self.energy, self.distance = spec.model, spec.energy, spec.distance
+
+    @property
+    def n_distinct(self) -> int:
+        """Leading time bins that determine all (``ResponsePlan.n_distinct``); the others
+        repeat them.  Default: every bin is distinct."""
+        return self.n_time
 
     def __repr__(self) -> str:
         model = self.model.name if hasattr(self.model, "name") else self.model
@@ -137,6 +165,64 @@ class ResponseOperator(ABC):
             dtype=np.float64,
         )
 
+    def block(
+        self, t: tuple[int, int] | None = None, n: tuple[int, int] | None = None
+    ) -> np.ndarray:
+        """``P[:, t0:t1, n0:n1]`` (``None`` = the whole axis), in :attr:`dtype`.
+
+        The default computes the columns as products with unit sky vectors (one
+        :meth:`forward` per pixel); operators that hold or evaluate ``P`` replace it.
+        """
+        t0, t1 = (0, self.n_time) if t is None else t
+        n0, n1 = (0, self.n_sky) if n is None else n
+        out = np.empty((self.n_det, t1 - t0, n1 - n0), dtype=self.dtype)
+        unit = np.zeros(self.n_sky)
+        for k, pixel in enumerate(range(n0, n1)):
+            unit[pixel] = 1.0
+            out[:, :, k] = self.forward(unit)[:, t0:t1]
+            unit[pixel] = 0.0
+        return out
+
+    def materialise(self) -> MaterialisedResponse:
+        """The whole matrix ``P`` held in memory: the one way to get the values of any
+        response (computed, read from a store or already held).
+
+        Returns
+        -------
+        MaterialisedResponse
+            With this operator's :attr:`spec` (or, without one, its metadata attributes).
+        """
+        # Function-local: MaterialisedResponse subclasses this class.
+        from rotmod.response.materialised import MaterialisedResponse
+
+        out = np.empty((self.n_det, self.n_time, self.n_sky), dtype=self.dtype)
+        for _, ((t0, t1), (n0, n1)), p in iter_blocks(
+            self._source, self._materialise_blocks(), **self._run_options()
+        ):
+            out[:, t0:t1, n0:n1] = p
+        repeat_half_turn(out, self.n_distinct)
+        if self.spec is not None:
+            return MaterialisedResponse(out, spec=self.spec)
+        return MaterialisedResponse(
+            out, instrument=self.instrument, grid=self.grid, time_bins=self.time_bins,
+            model=self.model, energy=self.energy, distance=self.distance,
+        )
+
+    # -- hooks of the block walk (iter_blocks) ---------------------------------------------
+
+    @property
+    def _source(self) -> Any:
+        """What evaluates the blocks: this operator, or something picklable for a cluster."""
+        return self
+
+    def _run_options(self) -> dict[str, Any]:
+        """``scheduler``, ``client``, ``progress`` of the block walk (default local)."""
+        return {}
+
+    def _materialise_blocks(self) -> list[Block]:
+        """Blocks over the distinct bins that :meth:`materialise` walks (~32 MB each)."""
+        return block_grid((self.n_det, self.n_distinct, self.n_sky))
+
     def metadata(self) -> dict[str, Any]:
         """Everything needed to reproduce this response, as plain (JSON-able) values.
 
@@ -144,23 +230,101 @@ class ResponseOperator(ABC):
         ``time_bins`` (:meth:`TimeBinning.to_dict`), ``model`` (``ProfileModel.describe()``),
         ``energy`` (keV or ``None``), ``dtype``, ``shape`` ``[n_det, n_time, n_sky]`` and
         ``rotmod_version``; unknown entries are ``None``.  A response for sources at a finite
-        distance adds ``distance`` (cm).
+        distance adds ``distance`` (cm).  With a :attr:`spec`, the fields are
+        :meth:`ResponseSpec.to_dict`.
         """
-        import rotmod
-
-        def _d(obj: Any) -> Any:
-            return None if obj is None else obj.to_dict()
-
-        model = self.model
+        if self.spec is not None:
+            fields = self.spec.to_dict()
+        else:
+            fields = describe(self.instrument, self.grid, self.time_bins, self.model,
+                              self.energy, self.dtype, (self.n_det, self.n_time, self.n_sky),
+                              self.distance)
+        distance = fields.pop("distance", None)
         return {
-            "instrument": _d(self.instrument),
-            "grid": _d(self.grid),
-            "time_bins": _d(self.time_bins),
-            "model": None if model is None else model.describe(),
-            "energy": None if self.energy is None else float(self.energy),
-            "dtype": np.dtype(self.dtype).name,
-            "shape": [int(self.n_det), int(self.n_time), int(self.n_sky)],
+            **fields,
             "rotmod_version": rotmod.__version__,
             # Only when finite, so that responses at infinity describe themselves as before.
-            **({} if self.distance is None else {"distance": float(self.distance)}),
+            **({} if distance is None else {"distance": distance}),
         }
+
+
+def _products(
+    p: np.ndarray, blk: Block, sky: np.ndarray | None, counts: np.ndarray | None
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Partial ``P_b S_b`` (n_det, bt) and ``P_b^T Y_b`` (bn,) of one block ``p``."""
+    (t0, t1), (n0, n1) = blk
+    flat = p.reshape(-1, n1 - n0)
+    fwd = None if sky is None else (flat @ sky[n0:n1]).reshape(p.shape[0], t1 - t0)
+    adj = None if counts is None else counts[:, t0:t1].ravel() @ flat
+    return fwd, adj
+
+
+class BlockwiseResponse(ResponseOperator):
+    """A response whose products walk blocks of ``P`` (evaluated or read one at a time).
+
+    Subclasses set :attr:`blocks` (over the distinct bins) and implement :meth:`block`.
+
+    Notes
+    -----
+    With blocks ``b = (t-range, n-range)``,
+    ``forward(S)[:, t_b] += P_b S[n_b]`` and ``adjoint(Y)[n_b] += P_b^T Y[:, t_b]``; the
+    partial sums are added in block order, so the result does not depend on where the
+    blocks ran.  :meth:`forward_adjoint` computes ``P S`` and ``P^T Y`` in one sweep (one
+    evaluation of every block) for algorithms that need both for independent vectors.
+    """
+
+    #: Blocks ``((t0, t1), (n0, n1))`` of the products, over the first :attr:`n_distinct`
+    #: bins.
+    blocks: list[Block]
+
+    def _sweep(
+        self, sky: np.ndarray | None, counts: np.ndarray | None
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        h = self.n_distinct
+        x = None if sky is None else np.ascontiguousarray(sky, dtype=self.dtype)
+        y = None if counts is None else np.ascontiguousarray(counts, dtype=self.dtype)
+        if y is not None:
+            y = fold_half_turn(y, h)
+        fwd = None if x is None else np.zeros((self.n_det, self.n_time), dtype=self.dtype)
+        adj = None if y is None else np.zeros(self.n_sky, dtype=self.dtype)
+        # Partial products are added in block order (a cluster returns them in any order):
+        # those that arrive early wait in ``pending``.
+        pending: dict[int, Any] = {}
+        nxt = 0
+        for i, _, res in iter_blocks(self._source, self.blocks, x, y, reduce=_products,
+                                     **self._run_options()):
+            pending[i] = res
+            while nxt in pending:
+                (t0, t1), (n0, n1) = self.blocks[nxt]
+                f, a = pending.pop(nxt)
+                if fwd is not None:
+                    fwd[:, t0:t1] += f
+                if adj is not None:
+                    adj[n0:n1] += a
+                nxt += 1
+        if fwd is not None:
+            repeat_half_turn(fwd, h)
+        return fwd, adj
+
+    def _forward(self, sky: np.ndarray) -> np.ndarray:
+        return self._sweep(sky, None)[0]
+
+    def _adjoint(self, counts: np.ndarray) -> np.ndarray:
+        return self._sweep(None, counts)[1]
+
+    def forward_adjoint(self, sky: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(P S, P^T Y)`` in one sweep over the blocks (each block evaluated once).
+
+        Parameters
+        ----------
+        sky : ndarray, shape (n_sky,)
+        counts : ndarray, shape (n_det, n_time)
+
+        Returns
+        -------
+        (ndarray, ndarray)
+            ``forward(sky)`` and ``adjoint(counts)``.
+        """
+        fwd, adj = self._sweep(self._check_sky(sky), self._check_counts(counts))
+        assert fwd is not None and adj is not None
+        return fwd, adj

@@ -12,6 +12,7 @@ result equals the local one bit for bit.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -20,8 +21,9 @@ import numpy as np
 
 from rotmod._deps import optional_import
 from rotmod.errors import ParameterError
+from rotmod.response._plan import repeat_half_turn
 
-__all__ = ["block_grid", "compute_blocks", "get_client", "map_blocks"]
+__all__ = ["block_grid", "compute_blocks", "get_client", "iter_blocks", "map_blocks"]
 
 log = logging.getLogger(__name__)
 
@@ -165,8 +167,38 @@ def map_blocks(
                 f.cancel()
 
 
-def _eval_block(blk: Block, plan: Any) -> np.ndarray:
-    return plan.block(t=blk[0], n=blk[1])
+def _block_of(blk: Block, source: Any, *args: Any, reduce: Callable[..., Any] | None = None
+              ) -> Any:
+    p = source.block(t=blk[0], n=blk[1])
+    return p if reduce is None else reduce(p, blk, *args)
+
+
+def iter_blocks(
+    source: Any,
+    blocks: list[Block],
+    *args: Any,
+    reduce: Callable[..., Any] | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    progress: bool = False,
+    desc: str = "response blocks",
+) -> Iterator[tuple[int, Block, Any]]:
+    """The one walk over blocks of a response: yield ``(index, block, result)``.
+
+    ``result`` is ``P[:, t0:t1, n0:n1] = source.block(t=(t0, t1), n=(n0, n1))`` for each
+    ``block = ((t0, t1), (n0, n1))`` of ``blocks`` (:func:`block_grid`), or, with
+    ``reduce``, ``reduce(P_block, block, *args)`` computed where the block was evaluated (on
+    a Dask worker, only the reduced result travels back).  ``source`` is anything with
+    ``block(t=, n=)``: a :class:`~rotmod.response._plan.ResponsePlan` (picklable, for
+    clusters) or a response operator.
+
+    Results come in block order locally and in completion order on a cluster (see
+    :func:`map_blocks`): combine them by ``index`` where the order of a sum matters.
+    """
+    func = _block_of if reduce is None else functools.partial(_block_of, reduce=reduce)
+    for i, res in map_blocks(func, blocks, source, *args, scheduler=scheduler, client=client,
+                             progress=progress, desc=desc):
+        yield i, blocks[i], res
 
 
 def compute_blocks(
@@ -189,14 +221,11 @@ def compute_blocks(
     scheduler, client, progress, block_size
         See :func:`map_blocks` and :func:`block_grid`.
     """
-    nd, nt, nn = plan.shape
+    nd, _, nn = plan.shape
     half = plan.n_distinct  # the remaining bins repeat these (ResponsePlan.n_distinct)
     blocks = block_grid((nd, half, nn), block_size)
-    for i, res in map_blocks(
-        _eval_block, blocks, plan, scheduler=scheduler, client=client, progress=progress
+    for _, ((t0, t1), (n0, n1)), res in iter_blocks(
+        plan, blocks, scheduler=scheduler, client=client, progress=progress
     ):
-        (t0, t1), (n0, n1) = blocks[i]
         out[:, t0:t1, n0:n1] = res
-    if half < nt:
-        out[:, half:, :] = out[:, :half, :]
-    return out
+    return repeat_half_turn(out, half)

@@ -36,6 +36,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -43,12 +44,15 @@ from numba import njit, prange
 from numba.extending import overload
 
 from rotmod._validate import as_int, as_scalar
-from rotmod.errors import ModelValidityError, ParameterError
+from rotmod.errors import ModelValidityError, ParameterError, RotmodError
+from rotmod.io import response_store as fmt
 from rotmod.limits import check_memory
-from rotmod.profiles.base import ProjectedGeometry, get_model
-from rotmod.response._plan import check_response_inputs
+from rotmod.profiles.base import ProjectedGeometry
+from rotmod.response._plan import distinct_bins, fold_half_turn, repeat_half_turn
 from rotmod.response.materialised import MaterialisedResponse
 from rotmod.response.operator import ResponseOperator
+from rotmod.response.spec import ResponseSpec, as_spec, restore_fields
+from rotmod.response.stored import STORE_KINDS, StoreKind
 
 __all__ = ["RadonResponse"]
 
@@ -372,7 +376,9 @@ class RadonResponse(ResponseOperator):
 
     Parameters
     ----------
-    instrument : Instrument
+    instrument : Instrument or ResponseSpec
+        The instrument, or a whole :class:`~rotmod.response.ResponseSpec` (its model must be
+        ``"exact"`` and its sources at infinity; then no other field is given).
     grid : sky grid
         Any grid with ``directions()`` and ``size`` (SkyGrid, CelestialGrid, HealpixGrid).
     time_bins : TimeBinning or int
@@ -381,7 +387,7 @@ class RadonResponse(ResponseOperator):
     tolerance : float
         Target largest error of any profile value against the exact model (default 1e-4);
         sets the table step (error ~ step^1.5) and the number of optical-depth nodes.
-    dtype : numpy dtype
+    dtype : numpy dtype, optional
         float32 (default: the interpolation error, not rounding, limits the accuracy) or
         float64 (products exact to rounding; the dot test holds to ~1e-15).
     detectors : sequence of int, optional
@@ -413,15 +419,17 @@ class RadonResponse(ResponseOperator):
     turn maps the mask onto itself, ``ResponsePlan.n_distinct``).
     """
 
+    store_kind = "radon"
+
     def __init__(
         self,
         instrument: Any,
-        grid: Any,
-        time_bins: Any,
+        grid: Any = None,
+        time_bins: Any = None,
         energy: Any = None,
         *,
         tolerance: float = 1e-4,
-        dtype: Any = np.float32,
+        dtype: Any = None,
         detectors: Any = None,
         block_bins: int | None = None,
         scheduler: str | None = None,
@@ -429,9 +437,15 @@ class RadonResponse(ResponseOperator):
         progress: bool = False,
         table: np.ndarray | None = None,
     ) -> None:
-        inst, tb, e, dt = check_response_inputs(
-            instrument, grid, time_bins, energy, dtype=dtype, detectors=detectors
-        )
+        # The model is not a parameter: a spec given whole must name it, else it is "exact".
+        model = None if isinstance(instrument, ResponseSpec) else "exact"
+        spec = as_spec(instrument, grid, time_bins, model, energy, dtype=dtype,
+                       detectors=detectors, default_dtype=np.float32)
+        if spec.model.name != "exact" or spec.distance is not None:
+            raise ParameterError(
+                "spec: the Radon response factorises the exact model for sources at "
+                f"infinity, got model {spec.model.name!r}, distance {spec.distance!r}")
+        inst = spec.instrument
         if not inst.is_ideal:
             # The factorisation needs one mask function shared by every detector and angle
             # (docs/physics.md, section 2b): a tilted axis, a finite mask, an irregular pattern
@@ -442,15 +456,16 @@ class RadonResponse(ResponseOperator):
                 "or a MatrixFreeResponse with the 'exact' model"
             )
         tol = as_scalar(tolerance, "tolerance", lo=0.0, lo_open=True, hi=0.1)
-        self.instrument, self.grid, self.time_bins, self.energy = inst, grid, tb, e
-        self.model = get_model("exact")
-        self.dtype = dt
+        self._adopt(spec)
         self.tolerance = tol
         self.scheduler, self.client, self.progress = scheduler, client, progress
-        self.n_det, self.n_time, self.n_sky = len(inst.detectors), tb.n_bins, int(grid.size)
-        # A half turn maps the mask onto itself: bins t and t + N/2 share a response.
-        self.n_distinct = self.n_time // 2 if self.n_time % 2 == 0 else self.n_time
         self._factors = self._setup(block_bins, table)
+
+    @property
+    def n_distinct(self) -> int:
+        """A half turn maps the (ideal) mask onto itself: bins t and t + N/2 share a
+        response, so only the first half of an even number of bins is computed."""
+        return distinct_bins(self.n_time)
 
     # -- setup ---------------------------------------------------------------------------
 
@@ -600,18 +615,12 @@ class RadonResponse(ResponseOperator):
         f = self._factors
         s = np.asarray(sky, dtype=np.float64)[self._perm]
         v = np.ascontiguousarray(s[:, None] * f.q_weights, dtype=self.dtype)
-        out = np.concatenate(self._run(_forward_block, v), axis=1) if self.blocks else (
-            np.zeros((self.n_det, 0)))
-        if self.n_distinct < self.n_time:
-            out = np.concatenate([out, out], axis=1)
-        return out.astype(self.dtype, copy=False)
+        out = np.empty((self.n_det, self.n_time))
+        out[:, : self.n_distinct] = np.concatenate(self._run(_forward_block, v), axis=1)
+        return repeat_half_turn(out, self.n_distinct).astype(self.dtype, copy=False)
 
     def _adjoint(self, counts: np.ndarray) -> np.ndarray:
-        y = np.asarray(counts, dtype=np.float64)
-        h = self.n_distinct
-        if h < self.n_time:
-            # Bins t and t + h share a response: P^T Y = P_h^T (Y[:, :h] + Y[:, h:]).
-            y = y[:, :h] + y[:, h:]
+        y = fold_half_turn(np.asarray(counts, dtype=np.float64), self.n_distinct)
         acc = np.zeros(self.n_sky)
         for part in self._run(_adjoint_block, y):
             acc += part
@@ -659,7 +668,19 @@ class RadonResponse(ResponseOperator):
         part = np.empty((self.n_det, self.n_distinct, idx.size), dtype=self.dtype)
         _dense(f.table, f.tx[k], f.ty[k], f.q_weights[k], f.cos_a, f.sin_a, f.k0, f.inv_dw,
                f.jx, f.ax, f.n_sub, part)
-        return np.concatenate([part] * (self.n_time // self.n_distinct), axis=1)
+        if self.n_distinct == self.n_time:
+            return part
+        out = np.empty((self.n_det, self.n_time, idx.size), dtype=self.dtype)
+        out[:, : self.n_distinct] = part
+        return repeat_half_turn(out, self.n_distinct)
+
+    def block(
+        self, t: tuple[int, int] | None = None, n: tuple[int, int] | None = None
+    ) -> np.ndarray:
+        """``P[:, t0:t1, n0:n1]``: :meth:`columns` of those pixels (``None`` = whole axis)."""
+        t0, t1 = (0, self.n_time) if t is None else t
+        n0, n1 = (0, self.n_sky) if n is None else n
+        return self.columns(np.arange(n0, n1))[:, t0:t1]
 
     def materialise(self) -> MaterialisedResponse:
         """Every value ``P[d, t, n]`` of this operator, held in memory.
@@ -673,9 +694,7 @@ class RadonResponse(ResponseOperator):
         MemoryBudgetError
             If the matrix does not fit the memory budget.
         """
-        return MaterialisedResponse(
-            self.columns(np.arange(self.n_sky)), instrument=self.instrument, grid=self.grid,
-            time_bins=self.time_bins, model=self.model, energy=self.energy)
+        return MaterialisedResponse(self.columns(np.arange(self.n_sky)), spec=self.spec)
 
     def metadata(self) -> dict[str, Any]:
         """As :meth:`ResponseOperator.metadata`, plus ``operator``: the factorisation's
@@ -691,3 +710,26 @@ class RadonResponse(ResponseOperator):
         return (super().__repr__()[:-1] + f", tolerance {self.tolerance:g}, table "
                 f"{f.table.shape[0]} x {f.n_w} x {f.n_q}>")
 
+
+
+@STORE_KINDS.register("radon")
+class RadonStore(StoreKind):
+    """A :class:`RadonResponse` stored as its table (metadata ``operator.kind = "radon"``);
+    opens as the same operator, the table checked."""
+
+    @classmethod
+    def write(cls, partial: Path, response: ResponseOperator, meta: dict[str, Any],
+              chunks: tuple[int, int] | None) -> None:
+        fmt.write_table(partial, meta, response.table)
+
+    @classmethod
+    def open(cls, group: Any, path: Path, meta: dict[str, Any]) -> ResponseOperator:
+        table = fmt.read_table(group, path)
+        r = restore_fields(meta)
+        try:
+            return RadonResponse(r["instrument"], r["grid"], r["time_bins"], r["energy"],
+                                 tolerance=meta["operator"]["tolerance"], dtype=meta["dtype"],
+                                 table=table)
+        except (KeyError, TypeError) as exc:
+            raise RotmodError(f"response store {str(path)!r}: its metadata is damaged ({exc}); "
+                              "rebuild it with rotmod response") from exc

@@ -41,7 +41,9 @@ class Instrument:
 
     mask: Mask
     detectors: DetectorArray
-    rotation_period: float = field(default=60.0, metadata={"unit": "s"})
+    # Field metadata: the field in files (see rotmod.geometry.Mask).
+    rotation_period: float = field(default=60.0, metadata={
+        "unit": "s", "fits": "ROT_PER", "doc": "mask rotation period"})
 
     def __post_init__(self) -> None:
         if not isinstance(self.mask, Mask):

@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rotmod.io.atomic import atomic_path
 from rotmod.errors import RotmodError
+from rotmod.io.atomic import atomic_path, check_overwrite
 
 if TYPE_CHECKING:
     from rotmod.config import InstrumentConfig
@@ -179,8 +179,7 @@ def check_output(
         if p.resolve() == Path(src).resolve():
             raise UserError(f"{what} {str(p)!r} is also an input of this command; write the "
                             "result to another file (--overwrite never replaces an input)")
-    if p.exists() and not overwrite:
-        raise UserError(f"{what} {str(p)!r} exists; pass --overwrite to replace it")
+    check_overwrite(p, overwrite, parameter=what, flag="--overwrite")
     if not p.parent.exists():
         raise UserError(f"{what} {str(p)!r}: folder {str(p.parent)!r} does not exist")
     return p
@@ -227,11 +226,13 @@ def check_input(path: str | os.PathLike, what: str = "input") -> Path:
 
 
 def write_table(table: Any, path: Path) -> Path:
-    """Write an astropy table as ECSV (``.ecsv``) or CSV (anything else), atomically."""
-    fmt = "ascii.ecsv" if path.suffix.lower() == ".ecsv" else "ascii.csv"
-    with atomic_path(path) as tmp:
-        table.write(tmp, format=fmt, overwrite=True)
-    return path
+    """Write an astropy table as ECSV (``.ecsv``) or CSV (anything else), atomically.
+
+    The output was checked (:func:`check_output`) before the work that made the table.
+    """
+    from rotmod.io.tables import write_table as write  # astropy.table: the CLI starts fast
+
+    return write(table, path, overwrite=True)
 
 
 def save_figure(fig: Any, path: Path, dpi: int = 120) -> Path:

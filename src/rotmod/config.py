@@ -60,6 +60,13 @@ configuration.
 
 Presets ship with the package (``rotmod/presets/*.toml``): ``paper`` and ``prototype``;
 :func:`load_instrument` accepts a preset name or a path.
+
+This module is the schema only.  The files themselves (reading TOML/YAML, ``extends``, the
+presets, writing with tomli-w) are :mod:`rotmod.io.config`'s, registered with
+:func:`rotmod.io.read`/:func:`rotmod.io.write`; ``load_instrument``, ``load_instrument_config``,
+``list_presets`` and ``preset_path`` are still reachable here.  Quantities written as text
+follow one rule, :func:`rotmod.conventions.parse_quantity` (its ParameterError becomes a
+:class:`ConfigError` here).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rotmod.errors import RotmodError
-from rotmod.io.atomic import atomic_path, check_overwrite
+from rotmod.io.atomic import check_overwrite
 
 if TYPE_CHECKING:
     from rotmod.config import InstrumentConfig
@@ -239,12 +239,13 @@ def save_figure(fig: Any, path: Path, dpi: int = 120) -> Path:
     """Save and close a matplotlib figure atomically (Agg backend)."""
     import matplotlib.pyplot as plt
 
+    from rotmod.io.figures import save_figure as save  # the CLI starts fast
+
     try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix[1:] or "png")
+        # The output was checked (check_plot) before the work that made the figure.
+        return save(fig, path, dpi=dpi, overwrite=True)
     finally:
         plt.close(fig)
-    return path
 
 
 def use_agg() -> None:

@@ -20,6 +20,7 @@ and writes atomically (:mod:`rotmod.io.atomic`).
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +48,7 @@ __all__ = [
 ]
 
 
-def _fits_identify(hdu: str) -> Any:
+def _fits_identify(hdu: str) -> Callable[[Path], bool]:
     """``identify(path)``: whether a FITS file has the extension ``hdu``."""
 
     def identify(path: Path) -> bool:

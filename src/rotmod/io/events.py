@@ -16,7 +16,10 @@ Event files follow the usual layout of high-energy astronomy event lists (OGIP):
 Folded profiles are a ``PROFILES`` table (``BIN_LO``, ``BIN_HI`` in deg, ``EXPOSURE``,
 ``COUNTS`` a vector of one entry per detector) with the same geometry keywords, ``GTI`` and
 ``DETECTORS``.  The geometry round-trips through :meth:`Instrument.to_dict` /
-:meth:`Instrument.from_dict`.  Writers refuse to overwrite unless asked and write
+:meth:`Instrument.from_dict`; its keywords, comments and units are the ``fits``, ``doc`` and
+``unit`` metadata of the fields of :class:`~rotmod.geometry.Mask`,
+:class:`~rotmod.geometry.DetectorArray` and :class:`~rotmod.geometry.Instrument`, which
+write and read every card.  Writers refuse to overwrite unless asked and write
 atomically (temporary file in the same folder, then :func:`os.replace`).
 """
 

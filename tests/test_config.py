@@ -184,7 +184,7 @@ def test_bad_files_and_unknown_preset(tmp_path) -> None:
     with pytest.raises(ConfigError, match="does not exist"):
         load_instrument_config(tmp_path / "missing.toml")
     wrong = tmp_path / "w.toml"
-    from rotmod.config import dumps_toml
+    from rotmod.io.config import dumps_toml
 
     wrong.write_text(dumps_toml(with_("mask.slat_width", "-4 cm")))
     with pytest.raises(ConfigError, match=r"w\.toml: mask\.slat_width: must be >= 0 cm"):

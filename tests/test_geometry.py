@@ -92,3 +92,14 @@ def test_conventions_by_ray_tracing(rng):
         assert uc[0, 0, 0] == pytest.approx(u_bottom, abs=1e-12)
         assert s[0, 0] == pytest.approx(u_top - u_bottom, abs=1e-12)
         assert geom.tau[0] == pytest.approx(1.0 * h / math.cos(theta))
+
+
+def test_paper_instrument_is_the_paper_preset() -> None:
+    # Instrument.paper holds the paper's numbers itself (geometry reads no files); the preset
+    # file describes the same instrument, value for value.
+    from rotmod.config import load_instrument
+
+    preset, paper = load_instrument("paper"), Instrument.paper()
+    assert paper == preset
+    assert paper.to_dict() == preset.to_dict()
+    assert paper.mask.material == preset.mask.material

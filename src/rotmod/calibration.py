@@ -35,9 +35,9 @@ import astropy.units as u
 import numpy as np
 
 from rotmod._validate import as_angle_scalar, as_array, as_int, as_scalar
+from rotmod.binning import TimeBinning
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument, disc_flux
-from rotmod.binning import TimeBinning
 
 __all__ = [
     "PARAMETERS",

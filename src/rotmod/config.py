@@ -60,6 +60,13 @@ configuration.
 
 Presets ship with the package (``rotmod/presets/*.toml``): ``paper`` and ``prototype``;
 :func:`load_instrument` accepts a preset name or a path.
+
+This module is the schema only.  The files themselves (reading TOML/YAML, ``extends``, the
+presets, writing with tomli-w) are :mod:`rotmod.io.config`'s, registered with
+:func:`rotmod.io.read`/:func:`rotmod.io.write`; ``load_instrument``, ``load_instrument_config``,
+``list_presets`` and ``preset_path`` are still reachable here.  Quantities written as text
+follow one rule, :func:`rotmod.conventions.parse_quantity` (its ParameterError becomes a
+:class:`ConfigError` here).
 """
 
 from __future__ import annotations
@@ -69,21 +76,26 @@ import difflib
 import math
 import os
 import re
-import tomllib
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import astropy.units as u
 import numpy as np
 
-from rotmod.io.atomic import write_text
-from rotmod._deps import optional_import
-from rotmod.errors import ParameterError, RotmodError
+from rotmod.conventions import format_quantity as _fmt_q
+from rotmod.conventions import parse_quantity
+from rotmod.errors import MaterialError, ParameterError, RotmodError
+from rotmod.geometry import DetectorArray, Instrument, Mask
+from rotmod.materials import DATABASE_RANGE_KEV, Material
 
-if TYPE_CHECKING:
-    from rotmod.geometry import Instrument
+if TYPE_CHECKING:  # provided at run time by __getattr__ (below), from rotmod.io.config
+    from rotmod.io.config import (
+        list_presets,
+        load_instrument,
+        load_instrument_config,
+        preset_path,
+    )
 
 __all__ = [
     "ConfigError",
@@ -109,83 +121,6 @@ class ConfigError(ParameterError):
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def _fmt_q(q: u.Quantity) -> str:
-    """``Quantity`` as a string that :func:`parse_quantity` reads back exactly."""
-    unit = q.unit.to_string()
-    value = float(q.value)
-    text = f"{value:.15g}"
-    if float(text) != value:
-        text = repr(value)
-    return f"{text} {unit}".strip() if unit else text
-
-
-def parse_quantity(
-    value: Any, key: str, unit: u.UnitBase | str, what: str, *, allow_inf: bool = False
-) -> u.Quantity:
-    """Parse ``value`` (a string such as ``"4 cm"`` or a Quantity) as a quantity of ``unit``.
-
-    Parameters
-    ----------
-    value : str or Quantity
-        The value read from the file.
-    key : str
-        Dotted key used in error messages (``"mask.slat_width"``).
-    unit : str or UnitBase
-        Any unit of the required physical type (``"cm"``).
-    what : str
-        The physical type in words (``"a length"``).
-    allow_inf : bool
-        Accept ``+inf`` (an opaque mask's ``mu = "inf 1/cm"``).
-
-    Returns
-    -------
-    astropy.units.Quantity
-        The value with its unit as written.
-
-    Raises
-    ------
-    ConfigError
-        Not a string with a unit, not finite, or not convertible to ``unit``.
-    """
-    target = u.Unit(unit)
-    example = f"'1 {target.to_string()}'"
-    if isinstance(value, u.Quantity):
-        q = value
-    elif isinstance(value, str):
-        try:
-            q = u.Quantity(value)
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(
-                f"{key}: must be {what} written with a unit like {example}, got {value!r}"
-            ) from exc
-    elif isinstance(value, bool):
-        raise ConfigError(
-            f"{key}: must be {what} written with a unit like {example}, got {value!r}"
-        )
-    elif isinstance(value, int | float):
-        raise ConfigError(
-            f"{key}: must be {what} written as a string with a unit like {example}, "
-            f"got the bare number {value!r}"
-        )
-    else:
-        raise ConfigError(
-            f"{key}: must be {what} written with a unit like {example}, got {value!r}"
-        )
-    if q.isscalar is False:
-        raise ConfigError(f"{key}: must be a single value, got {value!r}")
-    if q.unit == u.dimensionless_unscaled and target != u.dimensionless_unscaled:
-        raise ConfigError(
-            f"{key}: must be {what} written with a unit like {example}, got {value!r} (no unit)"
-        )
-    if not q.unit.is_equivalent(target):
-        raise ConfigError(
-            f"{key}: must be {what} (convertible to {target.to_string()}), got {value!r}"
-        )
-    if not np.isfinite(q.value) and not (allow_inf and np.isposinf(q.value)):
-        raise ConfigError(f"{key}: must be finite, got {value!r}")
-    return q
 
 
 def _check_bound(
@@ -324,9 +259,6 @@ _WHAT = {
 
 
 def _material(d: Any, section: str = "material", default: str = "lead") -> Any:
-    from rotmod.errors import MaterialError
-    from rotmod.materials import Material
-
     _check_keys(d, ("name", *(n for n, _ in _unit_fields(Material))), section)
     q = _read_fields({k: v for k, v in d.items() if k != "name"}, Material, section)
     if "name" not in d and default is None:
@@ -343,8 +275,6 @@ def _material(d: Any, section: str = "material", default: str = "lead") -> Any:
 
 
 def _mask(d: Any, material: Any) -> Any:
-    from rotmod.geometry import Mask
-
     q = _read_fields(d, Mask, "mask", required=("slat_width", "slat_gap", "thickness", "height"))
     return Mask(material=material, **q)
 
@@ -363,8 +293,6 @@ def _detectors(d: Any, material: Any = None) -> Any:
 
 
 def _detector_layout(d: Any) -> Any:
-    from rotmod.geometry import DetectorArray
-
     section = "detectors"
     _check_keys(d, _DETECTOR_KEYS, section)
     layout = d.get("layout", "single")
@@ -466,10 +394,26 @@ class InstrumentConfig:
         ConfigError
             A missing section or key, an unknown key, or a value that breaks its rule.
         """
-        from rotmod.geometry import Instrument
+        try:
+            cfg = cls._build(d)
+        except ConfigError:
+            raise
+        except RotmodError as exc:
+            # The units parser and the model classes raise ParameterError in their own
+            # words; a file's reader gets them as ConfigError in the file's key style.
+            raise _model_error(exc) from exc
+        cfg._check_energies()
+        return cfg
 
+    @classmethod
+    def _build(cls, d: dict[str, Any]) -> InstrumentConfig:
         _check_keys(d, cls.KEYS, "")
-        d = _extend(d)
+        if "extends" in d:
+            # Function-local: resolving ``extends`` reads files (rotmod.io.config), and that
+            # module builds on this one.
+            from rotmod.io.config import resolve_extends
+
+            d = resolve_extends(d)
         for sec in ("mask", "detectors"):
             if sec not in d:
                 raise ConfigError(f"{sec}: the [{sec}] table is required, but it is missing")
@@ -490,27 +434,18 @@ class InstrumentConfig:
             _check_bound(q, f"energies[{i}]", "keV", lo=0.0, strict=True, original=e)
             energies.append(q)
         top = {k: d[k] for k in ("rotation_period",) if k in d}
-        try:
-            det_mat = (_material(d["detector_material"], "detector_material", None)
-                       if "detector_material" in d else None)
-            inst = Instrument(
-                _mask(d["mask"], _material(d.get("material", {}))),
-                _detectors(d["detectors"], det_mat), **_read_fields(top, Instrument, ""),
-            )
-        except ConfigError:
-            raise
-        except RotmodError as exc:
-            raise _model_error(exc) from exc
-        cfg = cls(inst, tuple(energies), d.get("name", ""), d.get("description", ""))
-        cfg._check_energies()
-        return cfg
+        det_mat = (_material(d["detector_material"], "detector_material", None)
+                   if "detector_material" in d else None)
+        inst = Instrument(
+            _mask(d["mask"], _material(d.get("material", {}))),
+            _detectors(d["detectors"], det_mat), **_read_fields(top, Instrument, ""),
+        )
+        return cls(inst, tuple(energies), d.get("name", ""), d.get("description", ""))
 
     def _check_energies(self) -> None:
         m = self.instrument.mask
         if m.mu is not None or m.material.mass_attenuation is not None:
             return
-        from rotmod.materials import DATABASE_RANGE_KEV
-
         lo, hi = DATABASE_RANGE_KEV
         for i, e in enumerate(self.energies):
             v = e.to_value(u.keV)
@@ -522,7 +457,8 @@ class InstrumentConfig:
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> InstrumentConfig:
-        """Read and validate a TOML (or ``.yaml``/``.yml``) instrument file.
+        """Read and validate a TOML (or ``.yaml``/``.yml``) instrument file
+        (:func:`rotmod.io.config.read_instrument_config`, the one reader).
 
         Raises
         ------
@@ -530,12 +466,9 @@ class InstrumentConfig:
             The file is missing, not valid TOML/YAML, or fails validation (the message starts
             with the file name).
         """
-        p = Path(path)
-        data = _parse(p)
-        try:
-            return cls.from_dict(data)
-        except ConfigError as exc:
-            raise ConfigError(f"{p.name}: {exc}") from exc
+        from rotmod.io.config import read_instrument_config  # files live in io, built on this
+
+        return read_instrument_config(path)
 
     # ---------------------------------------------------------------- writing
 
@@ -569,21 +502,22 @@ class InstrumentConfig:
 
     def to_toml(self) -> str:
         """The configuration as TOML text (reads back to an equal configuration)."""
+        from rotmod.io.config import dumps_toml  # files live in io, built on this module
+
         return dumps_toml(self.to_dict())
 
     def write(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-        """Write the configuration as TOML, atomically.
+        """Write the configuration as TOML, atomically
+        (:func:`rotmod.io.config.write_instrument_config`, the one writer).
 
         Raises
         ------
         ConfigError
             ``path`` exists and ``overwrite`` is false.
         """
-        p = Path(path)
-        if p.exists() and not overwrite:
-            raise ConfigError(f"output {str(p)!r}: exists; pass overwrite=True to replace it")
-        write_text(p, self.to_toml())
-        return p
+        from rotmod.io.config import write_instrument_config  # files live in io (see read)
+
+        return write_instrument_config(self, path, overwrite=overwrite)
 
     # ---------------------------------------------------------------- use
 
@@ -613,152 +547,19 @@ class InstrumentConfig:
     __hash__ = None  # type: ignore[assignment]
 
 
-def _extend(d: dict[str, Any], depth: int = 0) -> dict[str, Any]:
-    """Resolve ``extends = "<preset or file>"``: the base's content, with every key this file
-    gives replacing the base's (tables key by key; a new ``[detectors]`` layout replaces the
-    base's layout keys)."""
-    if "extends" not in d:
-        return d
-    src = d["extends"]
-    if not isinstance(src, str):
-        raise ConfigError(f"extends: must be a preset name or a file path, got {src!r}")
-    if depth > 8:
-        raise ConfigError(f"extends: more than 8 levels of 'extends' (at {src!r})")
-    p = Path(src)
-    path = p if p.is_file() else preset_path(src) if os.sep not in src and not p.suffix else p
-    if not path.is_file():
-        raise ConfigError(f"extends: {src!r} is neither a preset nor an existing file")
-    base = _extend(_parse(path), depth + 1)
-    out = {k: v for k, v in base.items() if k not in ("name", "description")}
-    for k, v in d.items():
-        if k == "extends":
-            continue
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            merged = dict(out[k])
-            if k == "detectors" and "layout" in v:
-                merged = {}  # a new layout brings its own keys
-            merged.update(v)
-            out[k] = merged
-        else:
-            out[k] = v
-    return out
+#: The file-handling names this module offered before they moved to :mod:`rotmod.io.config`.
+_MOVED_TO_IO = ("dumps_toml", "list_presets", "load_instrument", "load_instrument_config",
+                "preset_path")
 
 
-def _parse(path: Path) -> dict[str, Any]:
-    """The raw content of a TOML (or ``.yaml``/``.yml``) file."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(
-            f"instrument file {str(path)!r}: cannot be read ({exc.strerror})"
-        ) from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError(
-            f"instrument file {str(path)!r}: is not a text file (TOML or YAML expected)"
-        ) from exc
-    try:
-        if path.suffix.lower() in (".yaml", ".yml"):
-            yaml = optional_import("yaml", "yaml", "YAML instrument files")
-            return yaml.safe_load(text) or {}
-        return tomllib.loads(text)
-    except Exception as exc:
-        raise ConfigError(f"instrument file {str(path)!r}: not valid "
-                          f"{path.suffix[1:] or 'TOML'} ({exc})") from exc
+def __getattr__(name: str) -> Any:
+    """``rotmod.config.load_instrument`` and the other file functions, from rotmod.io.config.
 
-
-# --------------------------------------------------------------------------- presets / loading
-
-
-def list_presets() -> list[str]:
-    """Names of the instrument presets shipped with the package."""
-    root = resources.files("rotmod") / "presets"
-    return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".toml"))
-
-
-def preset_path(name: str) -> Path:
-    """Path of the preset ``name``.
-
-    Raises
-    ------
-    ConfigError
-        Unknown preset (the message lists them and suggests the closest).
+    Looked up on first use: rotmod.io.config builds on this module, so importing it here at
+    module level would be a cycle.
     """
-    names = list_presets()
-    if name not in names:
-        close = difflib.get_close_matches(name, names, n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ConfigError(
-            f"instrument: {name!r} is neither an existing file nor a preset{hint}; presets are "
-            f"{', '.join(names)}"
-        )
-    return Path(str(resources.files("rotmod") / "presets" / f"{name}.toml"))
+    if name in _MOVED_TO_IO:
+        from rotmod.io import config as io_config
 
-
-def load_instrument_config(source: str | os.PathLike | InstrumentConfig) -> InstrumentConfig:
-    """Load an instrument description from a file path or a preset name.
-
-    Parameters
-    ----------
-    source : str, path-like or InstrumentConfig
-        A TOML/YAML file, or the name of a preset (:func:`list_presets`).
-
-    Returns
-    -------
-    InstrumentConfig
-    """
-    if isinstance(source, InstrumentConfig):
-        return source
-    p = Path(source)
-    if p.is_file():
-        return InstrumentConfig.read(p)
-    if isinstance(source, str) and os.sep not in source and not p.suffix:
-        return InstrumentConfig.read(preset_path(source))
-    raise ConfigError(
-        f"instrument: file {str(source)!r} does not exist (presets are "
-        f"{', '.join(list_presets())})"
-    )
-
-
-def load_instrument(source: str | os.PathLike | InstrumentConfig) -> Instrument:
-    """The :class:`~rotmod.geometry.Instrument` of a file path or preset name."""
-    return load_instrument_config(source).instrument
-
-
-# --------------------------------------------------------------------------- small TOML writer
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v) or math.isinf(v):
-            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
-        return repr(v)
-    if isinstance(v, str):
-        esc = v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
-        return f'"{esc}"'
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def dumps_toml(d: dict[str, Any]) -> str:
-    """TOML text of a dict of scalars, lists and one level of tables."""
-    lines: list[str] = []
-    tables = []
-    for k, v in d.items():
-        if isinstance(v, dict):
-            tables.append((k, v))
-        else:
-            lines.append(f"{k} = {_toml_value(v)}")
-    for k, v in tables:
-        lines.append("")
-        lines.append(f"[{k}]")
-        for kk, vv in v.items():
-            if isinstance(vv, dict):
-                raise TypeError("nested tables deeper than one level are not supported")
-            lines.append(f"{kk} = {_toml_value(vv)}")
-    return "\n".join(lines) + "\n"
-
+        return getattr(io_config, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -53,15 +53,21 @@ laid out ``[detector, angle, source]`` everywhere (the response's ``P[d, t, n]``
 
 from __future__ import annotations
 
+from typing import Any
+
 import astropy.units as u
 import numpy as np
+
+from rotmod.errors import ParameterError
 
 __all__ = [
     "ANGLE_UNIT",
     "ENERGY_UNIT",
     "LENGTH_UNIT",
     "TIME_UNIT",
+    "format_quantity",
     "mask_coordinate",
+    "parse_quantity",
     "shadow_shift",
     "source_angles",
     "source_direction",
@@ -113,3 +119,86 @@ def shadow_shift(
     ``docs/physics.md``.
     """
     return thickness * np.tan(theta) * np.cos(np.asarray(xi) + np.asarray(phi))
+
+
+# --------------------------------------------------------------------------- quantities as text
+#
+# Files and the command line write a value with its unit ("4 cm", "0.662 MeV"): one rule reads
+# such text (any unit of the right kind, never a bare number) and one writes it back exactly.
+
+
+def format_quantity(q: u.Quantity) -> str:
+    """``q`` as text that :func:`parse_quantity` reads back to the same value exactly."""
+    unit = q.unit.to_string()
+    value = float(q.value)
+    text = f"{value:.15g}"
+    if float(text) != value:
+        text = repr(value)
+    return f"{text} {unit}".strip() if unit else text
+
+
+def parse_quantity(
+    value: Any, key: str, unit: u.UnitBase | str, what: str, *, allow_inf: bool = False
+) -> u.Quantity:
+    """Parse ``value`` (a string such as ``"4 cm"`` or a Quantity) as a quantity of ``unit``.
+
+    Parameters
+    ----------
+    value : str or Quantity
+        The value as written (in a file, on a command line).
+    key : str
+        Dotted key used in error messages (``"mask.slat_width"``).
+    unit : str or UnitBase
+        Any unit of the required physical type (``"cm"``).
+    what : str
+        The physical type in words (``"a length"``).
+    allow_inf : bool
+        Accept ``+inf`` (an opaque mask's ``mu = "inf 1/cm"``).
+
+    Returns
+    -------
+    astropy.units.Quantity
+        The value with its unit as written.
+
+    Raises
+    ------
+    ParameterError
+        Not a string with a unit, not finite, or not convertible to ``unit``.
+    """
+    target = u.Unit(unit)
+    example = f"'1 {target.to_string()}'"
+    if isinstance(value, u.Quantity):
+        q = value
+    elif isinstance(value, str):
+        try:
+            q = u.Quantity(value)
+        except (TypeError, ValueError) as exc:
+            raise ParameterError(
+                f"{key}: must be {what} written with a unit like {example}, got {value!r}"
+            ) from exc
+    elif isinstance(value, bool):
+        raise ParameterError(
+            f"{key}: must be {what} written with a unit like {example}, got {value!r}"
+        )
+    elif isinstance(value, int | float):
+        raise ParameterError(
+            f"{key}: must be {what} written as a string with a unit like {example}, "
+            f"got the bare number {value!r}"
+        )
+    else:
+        raise ParameterError(
+            f"{key}: must be {what} written with a unit like {example}, got {value!r}"
+        )
+    if q.isscalar is False:
+        raise ParameterError(f"{key}: must be a single value, got {value!r}")
+    if q.unit == u.dimensionless_unscaled and target != u.dimensionless_unscaled:
+        raise ParameterError(
+            f"{key}: must be {what} written with a unit like {example}, got {value!r} (no unit)"
+        )
+    if not q.unit.is_equivalent(target):
+        raise ParameterError(
+            f"{key}: must be {what} (convertible to {target.to_string()}), got {value!r}"
+        )
+    if not np.isfinite(q.value) and not (allow_inf and np.isposinf(q.value)):
+        raise ParameterError(f"{key}: must be finite, got {value!r}")
+    return q

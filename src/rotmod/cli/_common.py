@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rotmod.errors import RotmodError
-from rotmod.io.atomic import atomic_path
+from rotmod.io.atomic import check_overwrite
 from rotmod.registry import Registry
 
 if TYPE_CHECKING:
@@ -180,8 +180,7 @@ def check_output(
         if p.resolve() == Path(src).resolve():
             raise UserError(f"{what} {str(p)!r} is also an input of this command; write the "
                             "result to another file (--overwrite never replaces an input)")
-    if p.exists() and not overwrite:
-        raise UserError(f"{what} {str(p)!r} exists; pass --overwrite to replace it")
+    check_overwrite(p, overwrite, parameter=what, flag="--overwrite")
     if not p.parent.exists():
         raise UserError(f"{what} {str(p)!r}: folder {str(p.parent)!r} does not exist")
     return p
@@ -250,23 +249,26 @@ def check_input(path: str | os.PathLike, what: str = "input") -> Path:
 
 
 def write_table(table: Any, path: Path) -> Path:
-    """Write an astropy table as ECSV (``.ecsv``) or CSV (anything else), atomically."""
-    fmt = "ascii.ecsv" if path.suffix.lower() == ".ecsv" else "ascii.csv"
-    with atomic_path(path) as tmp:
-        table.write(tmp, format=fmt, overwrite=True)
-    return path
+    """Write an astropy table as ECSV (``.ecsv``) or CSV (anything else), atomically.
+
+    The output was checked (:func:`check_output`) before the work that made the table.
+    """
+    from rotmod.io.tables import write_table as write  # astropy.table: the CLI starts fast
+
+    return write(table, path, overwrite=True)
 
 
 def save_figure(fig: Any, path: Path, dpi: int = 120) -> Path:
     """Save and close a matplotlib figure atomically (Agg backend)."""
     import matplotlib.pyplot as plt
 
+    from rotmod.io.figures import save_figure as save  # the CLI starts fast
+
     try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix[1:] or "png")
+        # The output was checked (check_plot) before the work that made the figure.
+        return save(fig, path, dpi=dpi, overwrite=True)
     finally:
         plt.close(fig)
-    return path
 
 
 def use_agg() -> None:

@@ -68,10 +68,18 @@ class DetectorArray:
     enter through the side.
     """
 
+    # Field metadata: the fields in files (see rotmod.geometry.Mask); the positions are a
+    # table of their own.
     positions: np.ndarray
-    diameter: float
-    thickness: float = field(default=0.0, metadata={"unit": "cm", "skip_default": True})
-    material: Material | None = field(default=None, metadata={"section": "detector_material"})
+    diameter: float = field(metadata={"unit": "cm", "fits": "DET_DIAM",
+                                      "doc": "detector diameter c"})
+    thickness: float = field(default=0.0, metadata={
+        "unit": "cm", "skip_default": True, "fits": "DET_H", "doc": "detector thickness H"})
+    material: Material | None = field(default=None, metadata={
+        "section": "detector_material",
+        "fits": {"name": ("DET_MAT", "detector material"),
+                 "density": ("DET_RHO", "detector density"),
+                 "mass_attenuation": ("DET_SIG", "fixed detector mass attenuation")}})
 
     def __post_init__(self) -> None:
         pos = as_array(self.positions, "detectors.positions", u.cm)

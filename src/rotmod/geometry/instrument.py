@@ -16,6 +16,13 @@ from rotmod.materials import Material
 
 __all__ = ["Instrument"]
 
+#: The seed paper's instrument (Budden et al., Sec. 4): slat width, gap, thickness and height
+#: (cm), the slats' material, the detector's diameter (cm) and the rotation period (s).
+_PAPER_MASK = (4.0, 4.0, 2.0, 100.0)
+_PAPER_MATERIAL = "lead"
+_PAPER_DIAMETER = 4.0
+_PAPER_PERIOD = 60.0
+
 
 @dataclass(frozen=True, eq=False)
 class Instrument:
@@ -34,7 +41,9 @@ class Instrument:
 
     mask: Mask
     detectors: DetectorArray
-    rotation_period: float = field(default=60.0, metadata={"unit": "s"})
+    # Field metadata: the field in files (see rotmod.geometry.Mask).
+    rotation_period: float = field(default=60.0, metadata={
+        "unit": "s", "fits": "ROT_PER", "doc": "mask rotation period"})
 
     def __post_init__(self) -> None:
         if not isinstance(self.mask, Mask):
@@ -150,17 +159,20 @@ class Instrument:
         sigma: float | None = None,
         detector_xy: tuple[float, float] = (0.0, 0.0),
     ) -> Instrument:
-        """The ``paper`` preset (the seed paper's simulation instrument) with changes.
+        """The seed paper's simulation instrument with changes.
 
-        Every value not given is the preset's (``rotmod/presets/paper.toml``: lead, a = b = c
-        = 4 cm, h = 2 cm, L = 100 cm, one detector); ``b`` and ``c`` follow ``a`` when only
-        ``a`` is given.  Like the preset, the slats' attenuation comes from XCOM at the energy
-        asked for; ``sigma`` (cm2/g) fixes it at every energy instead (the paper's own
-        scenarios: ``sigma=rotmod.materials.PAPER_SIGMA_662``).
+        Every value not given is the paper's (lead, a = b = c = 4 cm, h = 2 cm, L = 100 cm,
+        one detector, a 60 s turn; the ``paper`` preset, ``rotmod/presets/paper.toml``,
+        describes the same instrument, and tests/test_geometry.py checks that the two stay
+        equal); ``b`` and ``c`` follow ``a`` when only ``a`` is given.  Like the preset, the
+        slats' attenuation comes from XCOM at the energy asked for; ``sigma`` (cm2/g) fixes
+        it at every energy instead (the paper's own scenarios:
+        ``sigma=rotmod.materials.PAPER_SIGMA_662``).
         """
-        from rotmod.config import load_instrument  # the presets are built on this module
-
-        base = load_instrument("paper")
+        # The numbers are the model's own (geometry reads no files): the instrument files
+        # (rotmod.config) build on this module, never the other way round.
+        base = cls(Mask(*_PAPER_MASK, Material(_PAPER_MATERIAL)),
+                   DetectorArray.single(_PAPER_DIAMETER), _PAPER_PERIOD)
         m = base.mask
         a_ = m.slat_width if a is None else a
         b_ = (m.slat_gap if a is None else a_) if b is None else b

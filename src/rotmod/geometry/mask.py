@@ -72,26 +72,43 @@ class Mask:
     as built") defines the mask frame they set up.
     """
 
-    # ``unit`` metadata: the unit a plain number means and the unit instrument files write
-    # (rotmod.config derives the file schema from these fields).
-    slat_width: float = field(metadata={"unit": "cm"})
-    slat_gap: float = field(metadata={"unit": "cm"})
-    thickness: float = field(metadata={"unit": "cm"})
-    height: float = field(metadata={"unit": "cm"})
-    material: Material = field(default_factory=lambda: Material("Pb"),
-                               metadata={"section": "material"})
-    mu: float | None = field(default=None, metadata={"unit": "1/cm"})
+    # Field metadata is the one description of each field in files: ``unit`` is the unit a
+    # plain number means and the unit files write (rotmod.config's TOML keys), ``fits`` and
+    # ``doc`` the header card of event and profile files (rotmod.io.events: comment
+    # ``[unit] doc``).  Adding a field to files is adding it here.
+    slat_width: float = field(metadata={"unit": "cm", "fits": "MASK_A", "doc": "slat width a"})
+    slat_gap: float = field(metadata={"unit": "cm", "fits": "MASK_B", "doc": "slat gap b"})
+    thickness: float = field(metadata={"unit": "cm", "fits": "MASK_H",
+                                       "doc": "slat thickness h"})
+    height: float = field(metadata={"unit": "cm", "fits": "MASK_L",
+                                    "doc": "mask bottom above detector plane L"})
+    material: Material = field(default_factory=lambda: Material("Pb"), metadata={
+        "section": "material",
+        "fits": {"name": ("MASK_MAT", "slat material"), "density": ("MASK_RHO", "slat density"),
+                 "mass_attenuation": ("MASK_SIG", "fixed mass attenuation")}})
+    mu: float | None = field(default=None, metadata={
+        "unit": "1/cm", "fits": "MASK_MU", "doc": "fixed linear attenuation", "inf": "opaque"})
     # As-built fields: files write them only when they differ from the ideal mask.
-    slat_edges: tuple[float, ...] | None = field(default=None,
-                                                 metadata={"unit": "cm", "list": True})
-    axis_offset_x: float = field(default=0.0, metadata={"unit": "cm", "skip_default": True})
-    axis_offset_y: float = field(default=0.0, metadata={"unit": "cm", "skip_default": True})
+    slat_edges: tuple[float, ...] | None = field(default=None, metadata={
+        "unit": "cm", "list": True, "fits": "MASK_EDG", "doc": "slat edges of one period"})
+    axis_offset_x: float = field(default=0.0, metadata={
+        "unit": "cm", "skip_default": True, "fits": "MASK_OX",
+        "doc": "rotation axis at the mask, x"})
+    axis_offset_y: float = field(default=0.0, metadata={
+        "unit": "cm", "skip_default": True, "fits": "MASK_OY",
+        "doc": "rotation axis at the mask, y"})
     # Held as Quantities in rad (so that dataclasses.replace cannot misread them as deg);
     # files write them in deg.
-    tilt_x: Any = field(default=0.0, metadata={"unit": "deg", "skip_default": True})
-    tilt_y: Any = field(default=0.0, metadata={"unit": "deg", "skip_default": True})
-    outline: str | None = field(default=None, metadata={"text": True})
-    outline_size: float | None = field(default=None, metadata={"unit": "cm"})
+    tilt_x: Any = field(default=0.0, metadata={
+        "unit": "deg", "skip_default": True, "fits": "MASK_TX",
+        "doc": "tilt of the rotation axis, x"})
+    tilt_y: Any = field(default=0.0, metadata={
+        "unit": "deg", "skip_default": True, "fits": "MASK_TY",
+        "doc": "tilt of the rotation axis, y"})
+    outline: str | None = field(default=None, metadata={
+        "text": True, "fits": "MASK_OUT", "doc": "mask outline (circle or square)"})
+    outline_size: float | None = field(default=None, metadata={
+        "unit": "cm", "fits": "MASK_OSZ", "doc": "outline radius or half-width"})
 
     def __post_init__(self) -> None:
         cm = u.cm

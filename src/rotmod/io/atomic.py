@@ -22,11 +22,21 @@ from rotmod.errors import ParameterError
 __all__ = ["atomic_dir", "atomic_path", "check_overwrite", "current_umask", "write_text"]
 
 
-def check_overwrite(path: str | os.PathLike, overwrite: bool, *, parameter: str = "path") -> Path:
+def check_overwrite(path: str | os.PathLike, overwrite: bool, *, parameter: str = "path",
+                    flag: str = "overwrite=True") -> Path:
     """The one overwrite policy: refuse an existing ``path`` unless ``overwrite`` is true.
 
     Every writer calls this before it starts work, so the refusal costs nothing and the
     message is the same everywhere.
+
+    Parameters
+    ----------
+    path : str or path-like
+    overwrite : bool
+    parameter : str
+        The caller's name of ``path`` in the message.
+    flag : str
+        How the caller's user asks to overwrite (the command line: ``"--overwrite"``).
 
     Raises
     ------
@@ -36,7 +46,7 @@ def check_overwrite(path: str | os.PathLike, overwrite: bool, *, parameter: str 
     p = Path(path)
     if not overwrite and (p.exists() or p.is_symlink()):
         raise ParameterError(
-            f"{parameter} {str(p)!r} already exists; pass overwrite=True to replace it"
+            f"{parameter} {str(p)!r} already exists; pass {flag} to replace it"
         )
     return p
 

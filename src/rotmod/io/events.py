@@ -16,12 +16,16 @@ Event files follow the usual layout of high-energy astronomy event lists (OGIP):
 Folded profiles are a ``PROFILES`` table (``BIN_LO``, ``BIN_HI`` in deg, ``EXPOSURE``,
 ``COUNTS`` a vector of one entry per detector) with the same geometry keywords, ``GTI`` and
 ``DETECTORS``.  The geometry round-trips through :meth:`Instrument.to_dict` /
-:meth:`Instrument.from_dict`.  Writers refuse to overwrite unless asked and write
+:meth:`Instrument.from_dict`; its keywords, comments and units are the ``fits``, ``doc`` and
+``unit`` metadata of the fields of :class:`~rotmod.geometry.Mask`,
+:class:`~rotmod.geometry.DetectorArray` and :class:`~rotmod.geometry.Instrument`, which
+write and read every card.  Writers refuse to overwrite unless asked and write
 atomically (temporary file in the same folder, then :func:`os.replace`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -35,9 +39,10 @@ from astropy.io import fits
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.events import EventList, FoldedProfiles
-from rotmod.geometry import Instrument
+from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.io._fits import header_text, open_verified
-from rotmod.io.atomic import atomic_path
+from rotmod.io.atomic import atomic_path, check_overwrite
+from rotmod.materials import Material
 
 __all__ = ["read_events", "read_folded", "write_events", "write_folded"]
 
@@ -45,55 +50,72 @@ __all__ = ["read_events", "read_folded", "write_events", "write_folded"]
 # --------------------------------------------------------------------------- helpers
 
 
-def _instrument_cards(inst: Instrument, start_phase: float) -> list[tuple[str, Any, str]]:
-    d = inst.to_dict()
-    m = d["mask"]
-    cards = [
-        ("MASK_A", m["slat_width"], "[cm] slat width a"),
-        ("MASK_B", m["slat_gap"], "[cm] slat gap b"),
-        ("MASK_H", m["thickness"], "[cm] slat thickness h"),
-        ("MASK_L", m["height"], "[cm] mask bottom above detector plane L"),
-        ("MASK_MAT", m["material"], "slat material"),
-        ("MASK_RHO", m["density"], "[g/cm3] slat density"),
-    ]
-    if m["mass_attenuation"] is not None:
-        cards.append(("MASK_SIG", m["mass_attenuation"], "[cm2/g] fixed mass attenuation"))
-    if m["mu"] is not None:
-        if math.isinf(m["mu"]):
-            cards.append(("MASK_MU", "INF", "[1/cm] fixed linear attenuation: opaque"))
-        else:
-            cards.append(("MASK_MU", m["mu"], "[1/cm] fixed linear attenuation"))
-    cards += [(key, m[name], comment) for name, key, comment in _AS_BUILT_CARDS if name in m]
-    if "slat_edges" in m:
-        cards.append(("MASK_EDG", json.dumps(m["slat_edges"]),
-                      "[cm] slat edges of one period (JSON list)"))
-    det = d["detectors"]
-    if "thickness" in det:
-        cards += [("DET_H", det["thickness"], "[cm] detector thickness H"),
-                  ("DET_MAT", det["material"], "detector material"),
-                  ("DET_RHO", det["density"], "[g/cm3] detector density")]
-        if det["mass_attenuation"] is not None:
-            cards.append(("DET_SIG", det["mass_attenuation"],
-                          "[cm2/g] fixed detector mass attenuation"))
-    cards += [
-        ("DET_DIAM", d["detectors"]["diameter"], "[cm] detector diameter c"),
-        ("NDET", len(inst.detectors), "number of detectors"),
-        ("ROT_PER", d["rotation_period"], "[s] mask rotation period"),
-        ("ROT_PHA0", float(u.Quantity(start_phase, u.rad).to_value(u.deg)),
-         "[deg] mask angle at TIME = 0"),
-    ]
+def _card_fields(cls: type) -> list[tuple[str, Any, dataclasses.Field]]:
+    """``(field name, fits spec, field)`` of the fields of ``cls`` that are header cards, in
+    field order with JSON lists after the scalars (as the cards have always been written)."""
+    fs = [(f.name, f.metadata["fits"], f) for f in dataclasses.fields(cls)
+          if "fits" in f.metadata]
+    return sorted(fs, key=lambda t: bool(t[2].metadata.get("list")))
+
+
+def _optional(f: dataclasses.Field) -> bool:
+    """A card that may be absent: the field is optional (None) or written only when set."""
+    return f.default is None or bool(f.metadata.get("skip_default"))
+
+
+#: Units of the Material fields (the cards of a material field carry them).
+_MATERIAL_UNITS = {f.name: f.metadata.get("unit") for f in dataclasses.fields(Material)}
+
+
+#: Material cards that may be absent: a fixed coefficient (the density is always written: a
+#: Material holds the database's when none is given).
+_MATERIAL_OPTIONAL = ("mass_attenuation",)
+
+
+def _material_key(name: str) -> str:
+    """The key of a Material field in ``to_dict`` (its name is the ``material`` entry)."""
+    return "material" if name == "name" else name
+
+
+def _comment(unit: str | None, doc: str) -> str:
+    return f"[{unit}] {doc}" if unit else doc
+
+
+def _section_cards(cls: type, d: dict[str, Any]) -> list[tuple[str, Any, str]]:
+    """Header cards of the fields of ``cls`` in ``d`` (its ``to_dict``), from the fields'
+    ``fits``/``doc``/``unit`` metadata; None values are not written."""
+    cards: list[tuple[str, Any, str]] = []
+    for name, spec, f in _card_fields(cls):
+        if isinstance(spec, dict):  # a material: its fields' cards under this field's keys
+            for sub, (key, doc) in spec.items():
+                v = d.get(_material_key(sub))
+                if v is not None:
+                    cards.append((key, v, _comment(_MATERIAL_UNITS[sub], doc)))
+            continue
+        v = d.get(name)
+        if v is None:
+            continue
+        comment = _comment(f.metadata.get("unit"), f.metadata["doc"])
+        if f.metadata.get("list"):
+            v, comment = json.dumps(v), f"{comment} (JSON list)"
+        elif f.metadata.get("inf") and isinstance(v, float) and math.isinf(v):
+            v, comment = "INF", f"{comment}: {f.metadata['inf']}"
+        cards.append((spec, v, comment))
     return cards
 
 
-#: The mask as built, as header cards (written only when they differ from the ideal mask).
-_AS_BUILT_CARDS = (
-    ("axis_offset_x", "MASK_OX", "[cm] rotation axis at the mask, x"),
-    ("axis_offset_y", "MASK_OY", "[cm] rotation axis at the mask, y"),
-    ("tilt_x", "MASK_TX", "[deg] tilt of the rotation axis, x"),
-    ("tilt_y", "MASK_TY", "[deg] tilt of the rotation axis, y"),
-    ("outline", "MASK_OUT", "mask outline (circle or square)"),
-    ("outline_size", "MASK_OSZ", "[cm] outline radius or half-width"),
-)
+def _instrument_cards(inst: Instrument, start_phase: float) -> list[tuple[str, Any, str]]:
+    """The instrument as header cards: the fields of the mask, the detectors and the
+    instrument (their metadata name the cards), the detector count and the start phase."""
+    d = inst.to_dict()
+    return [
+        *_section_cards(Mask, d["mask"]),
+        *_section_cards(DetectorArray, d["detectors"]),
+        ("NDET", len(inst.detectors), "number of detectors"),
+        *_section_cards(Instrument, d),
+        ("ROT_PHA0", float(u.Quantity(start_phase, u.rad).to_value(u.deg)),
+         "[deg] mask angle at TIME = 0"),
+    ]
 
 
 def _detectors_hdu(inst: Instrument) -> fits.BinTableHDU:
@@ -153,9 +175,7 @@ def _time_cards(meta: dict[str, Any], t_start: float, t_stop: float, gti: np.nda
 
 
 def _write_atomic(hdul: fits.HDUList, path: str | os.PathLike, overwrite: bool) -> Path:
-    p = Path(path)
-    if p.exists() and not overwrite:
-        raise ParameterError(f"path {str(p)!r} exists; pass overwrite=True to replace it")
+    p = check_overwrite(path, overwrite)
     if not p.parent.exists():
         raise ParameterError(f"path {str(p)!r}: folder {str(p.parent)!r} does not exist")
     with atomic_path(p) as tmp:
@@ -245,6 +265,47 @@ def _time_offset(header: Any, path: Any, ext: str) -> tuple[float, u.UnitBase]:
     return float((zero * unit).to_value(u.s)), unit
 
 
+def _section_from(cls: type, header: Any, path: Any, ext: str) -> dict[str, Any]:
+    """The ``to_dict`` of a ``cls`` from its header cards (the inverse of
+    :func:`_section_cards`); a missing required card is an error naming it."""
+    out: dict[str, Any] = {}
+    for name, spec, f in _card_fields(cls):
+        if isinstance(spec, dict):  # a material: required, or present when its name is
+            name_key = spec["name"][0]
+            if f.default is None and name_key not in header:
+                out.update((_material_key(sub), None) for sub in spec)
+                continue
+            for sub, (key, _) in spec.items():
+                if sub == "name":
+                    out["material"] = str(_key(header, key, path, ext))
+                elif sub in _MATERIAL_OPTIONAL and key not in header:
+                    out[sub] = None
+                else:
+                    out[sub] = _num(header, key, path, ext)
+            continue
+        if spec not in header:
+            if not _optional(f):
+                _key(header, spec, path, ext)  # raises: the card is required
+            elif f.default is None:
+                out[name] = None
+            continue
+        value = header[spec]
+        if f.metadata.get("text"):
+            out[name] = str(value)
+        elif f.metadata.get("list"):
+            try:
+                out[name] = [float(v) for v in json.loads(str(value))]
+            except (ValueError, TypeError):
+                raise RotmodError(f"file {str(path)!r}: {ext} keyword {spec} must be a JSON "
+                                  f"list of numbers, got {value!r}") from None
+        elif (f.metadata.get("inf") and isinstance(value, str)
+              and value.strip().upper() == "INF"):
+            out[name] = math.inf
+        else:
+            out[name] = _num(header, spec, path, ext)
+    return out
+
+
 def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> Instrument:
     det = _ext(hdul, "DETECTORS", path)
     ids = _col(det.data, "DET_ID", path, "DETECTORS")
@@ -253,45 +314,12 @@ def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> In
         [_col(det.data, "DETX", path, "DETECTORS"), _col(det.data, "DETY", path, "DETECTORS")],
         axis=1,
     )[order].astype(float)
-    mu = header.get("MASK_MU")
-    if isinstance(mu, str) and mu.strip().upper() == "INF":
-        mu = math.inf
-    elif mu is not None:
-        mu = _num(header, "MASK_MU", path, ext)
     d = {
-        "mask": {
-            "slat_width": _num(header, "MASK_A", path, ext),
-            "slat_gap": _num(header, "MASK_B", path, ext),
-            "thickness": _num(header, "MASK_H", path, ext),
-            "height": _num(header, "MASK_L", path, ext),
-            "material": str(_key(header, "MASK_MAT", path, ext)),
-            "density": _num(header, "MASK_RHO", path, ext),
-            "mass_attenuation": (
-                _num(header, "MASK_SIG", path, ext) if "MASK_SIG" in header else None
-            ),
-            "mu": None if mu is None else float(mu),
-        },
-        "detectors": {
-            "diameter": _num(header, "DET_DIAM", path, ext),
-            "positions": pos.tolist(),
-        },
-        "rotation_period": _num(header, "ROT_PER", path, ext),
+        "mask": _section_from(Mask, header, path, ext),
+        "detectors": {**_section_from(DetectorArray, header, path, ext),
+                      "positions": pos.tolist()},
+        **_section_from(Instrument, header, path, ext),
     }
-    for name, key, _ in _AS_BUILT_CARDS:
-        if key in header:
-            d["mask"][name] = (str(header[key]) if name == "outline"
-                               else _num(header, key, path, ext))
-    if "MASK_EDG" in header:
-        try:
-            d["mask"]["slat_edges"] = [float(v) for v in json.loads(str(header["MASK_EDG"]))]
-        except (ValueError, TypeError):
-            raise RotmodError(f"file {str(path)!r}: {ext} keyword MASK_EDG must be a JSON "
-                              f"list of numbers, got {header['MASK_EDG']!r}") from None
-    if "DET_H" in header:
-        d["detectors"].update(
-            thickness=_num(header, "DET_H", path, ext), material=str(header.get("DET_MAT")),
-            density=_num(header, "DET_RHO", path, ext),
-            mass_attenuation=_num(header, "DET_SIG", path, ext) if "DET_SIG" in header else None)
     try:
         return Instrument.from_dict(d)
     except RotmodError as exc:

@@ -16,14 +16,16 @@ pointing, ``rotation`` = the roll), which is exact everywhere, the celestial pol
 from __future__ import annotations
 
 import itertools
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import astropy.units as u
 import numpy as np
 from astropy.coordinates import ICRS, CartesianRepresentation, SkyCoord, SkyOffsetFrame
 
-from rotmod._validate import as_angle, as_angle_scalar
+from rotmod._validate import as_angle, as_angle_scalar, as_array, as_scalar
 from rotmod.errors import ParameterError
 
 __all__ = ["Attitude"]
@@ -140,8 +142,6 @@ class AttitudeTable:
     roll: Any
 
     def __post_init__(self) -> None:
-        from rotmod._validate import as_array
-
         t = as_array(self.time, "attitude.time", u.s, ndim=1)
         if t.size == 0 or np.any(np.diff(t) <= 0):
             raise ParameterError("attitude.time must hold at least one time, increasing")
@@ -169,8 +169,6 @@ class AttitudeTable:
     def intervals(self, t_start: float, t_stop: float, max_step: float
                   ) -> list[tuple[float, float, Attitude]]:
         """``(lo, hi, attitude at the middle)`` pieces of at most ``max_step`` s."""
-        from rotmod._validate import as_scalar
-
         t0 = as_scalar(t_start, "t_start", u.s)
         t1 = as_scalar(t_stop, "t_stop", u.s)
         step = as_scalar(max_step, "max_step", u.s, lo=0.0, lo_open=True)
@@ -181,29 +179,24 @@ class AttitudeTable:
         return [(float(a), float(b), self.at(0.5 * (a + b)))
                 for a, b in itertools.pairwise(edges)]
 
-    def write(self, path: Any) -> Any:
-        """Write the samples as an ECSV table (time in s, angles in deg), atomically."""
-        from astropy.table import Table
+    def write(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+        """Write the samples as an ECSV table (time in s, angles in deg), atomically
+        (:func:`rotmod.io.tables.write_attitude_table`, the one writer).
 
-        from rotmod.io.atomic import atomic_path
+        Raises
+        ------
+        ParameterError
+            ``path`` exists and ``overwrite`` is false.
+        """
+        # Function-local: the file formats live in rotmod.io, which builds on this module.
+        from rotmod.io.tables import write_attitude_table
 
-        t = Table({"time": self.time * u.s, "ra": self.ra * u.deg, "dec": self.dec * u.deg,
-                   "roll": self.roll * u.deg})
-        with atomic_path(path) as tmp:
-            t.write(tmp, format="ascii.ecsv", overwrite=True)
-        return path
+        return write_attitude_table(self, path, overwrite=overwrite)
 
     @classmethod
-    def read(cls, path: Any) -> AttitudeTable:
-        """Read an attitude table (ECSV or FITS with columns time, ra, dec, roll + units)."""
-        from astropy.table import Table
+    def read(cls, path: str | os.PathLike) -> AttitudeTable:
+        """Read an attitude table (ECSV or FITS with columns time, ra, dec, roll + units;
+        :func:`rotmod.io.tables.read_attitude_table`, the one reader)."""
+        from rotmod.io.tables import read_attitude_table  # see write
 
-        try:
-            t = Table.read(path)
-            cols = {c.lower(): t[c] for c in t.colnames}
-            q = [u.Quantity(cols[k]) if cols[k].unit else np.asarray(cols[k])
-                 for k in ("time", "ra", "dec", "roll")]
-        except (OSError, ValueError, KeyError) as exc:
-            raise ParameterError(f"attitude file {str(path)!r}: needs columns time, ra, dec, "
-                                 f"roll ({type(exc).__name__}: {exc})") from exc
-        return cls(*q)
+        return read_attitude_table(path)

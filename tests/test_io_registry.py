@@ -10,8 +10,8 @@ from rotmod import DetectorArray, Instrument, Mask, Material
 from rotmod.config import InstrumentConfig, list_presets, load_instrument_config
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, FoldedProfiles, fold
-from rotmod.montecarlo import PointSources, simulate_observation
-from rotmod.sky import AttitudeTable
+from rotmod.montecarlo import simulate_observation
+from rotmod.sky import AttitudeTable, PointSources
 
 
 @pytest.fixture(scope="module")

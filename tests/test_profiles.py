@@ -399,7 +399,7 @@ def test_a_new_model_is_one_registered_class(paper_instrument, tmp_path) -> None
     np.testing.assert_array_equal(P, np.full((n_det, 3, 2), 0.25))
     # The responses and the command line take it by name, with no edit anywhere else.
     resp = build_response(paper_instrument, SkyGrid((3, 4), 1.0), 8, model=name, energy=662)
-    np.testing.assert_array_equal(resp.todense(), np.full((n_det, 8, 12), 0.25, np.float32))
+    np.testing.assert_array_equal(resp.matrix, np.full((n_det, 8, 12), 0.25, np.float32))
     assert resp.metadata()["model"]["model"] == name
     out, png = tmp_path / "p.csv", tmp_path / "p.png"
     argv = ["profile", "-s", "3,0", "-m", name, "--angles", "4", "-o", out, "--plot", png]

@@ -369,5 +369,3 @@ def test_block_and_materialise_are_the_same_values_for_every_operator(inst, grid
                                    rtol=0, atol=1e-14)
         np.testing.assert_allclose(op.materialise().matrix, mat.matrix, rtol=0, atol=1e-14)
     assert mat.materialise() is mat
-    with pytest.warns(DeprecationWarning, match="todense"):
-        assert mat.todense() is mat.matrix

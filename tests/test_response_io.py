@@ -233,7 +233,5 @@ def test_every_operator_is_stored_by_its_store_kind(tmp_path, inst, grid, ref):
     c = save_response(tmp_path / "copy.zarr", b, chunks=(7, 9))
     np.testing.assert_array_equal(c.materialise().matrix, ref.matrix)
     assert c.metadata() == b.metadata()
-    with pytest.warns(DeprecationWarning, match="load"):
-        np.testing.assert_array_equal(c.load().matrix, ref.matrix)
     with pytest.raises(ParameterError, match="already exists; pass overwrite=True"):
         save_response(tmp_path / "copy.zarr", b)

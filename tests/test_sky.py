@@ -220,13 +220,13 @@ def test_a_new_grid_kind_goes_everywhere_without_other_changes(tmp_path):
     base = Instrument.paper(sigma=PAPER_SIGMA_662)
     inst = Instrument(base.mask, DetectorArray.hexagonal(3.8, rings=1))
     tb = TimeBinning(24)
-    R = build_response(inst, ring, tb, dtype=np.float64).todense()
+    R = build_response(inst, ring, tb, dtype=np.float64).matrix
     assert R.shape == (7, 24, 6)
     np.testing.assert_allclose(MatrixFreeResponse(inst, ring, tb, dtype=np.float64)
                                .forward(np.eye(6)[4]), R[:, :, 4], rtol=1e-12)
     for k, phi in enumerate(ring.directions()[1].to_value(u.deg)):
         one = build_response(inst, SkyGrid((1, 1), 0.1, tangent=(3.0, phi)), tb,
-                             dtype=np.float64).todense()
+                             dtype=np.float64).matrix
         np.testing.assert_allclose(R[:, :, k], one[:, :, 0], rtol=1e-9, atol=1e-15)
     # A plot: kinds without a drawer of their own are drawn at their directions.
     ax = plot_image(img, ring, sources=([3.0], [60.0]), title="ring")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from typing import Any
 
 import numpy as np
@@ -117,12 +116,6 @@ class MaterialisedResponse(ResponseOperator):
     def materialise(self) -> MaterialisedResponse:
         """This response (it is in memory already)."""
         return self
-
-    def todense(self) -> np.ndarray:
-        """Deprecated: use ``materialise().matrix`` (or :attr:`matrix`)."""
-        warnings.warn("MaterialisedResponse.todense() is deprecated; use .matrix",
-                      DeprecationWarning, stacklevel=2)
-        return self.matrix
 
 
 def _set_metadata(

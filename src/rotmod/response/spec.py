@@ -35,7 +35,7 @@ FIELDS = ("instrument", "grid", "time_bins", "model", "energy", "dtype", "shape"
 def _check_grid(grid: Any) -> None:
     if not isinstance(grid, SkyGeometry):
         raise ParameterError(
-            f"grid must be a sky geometry (a rotmod.sky.SkyGeometry: SkyGrid, CelestialGrid, "
+            f"grid must be a sky grid (a rotmod.sky.SkyGeometry: SkyGrid, CelestialGrid, "
             f"HealpixGrid, ...), got {type(grid).__name__}"
         )
 

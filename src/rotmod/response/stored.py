@@ -14,7 +14,6 @@ would take terabytes) and opens as the same operator.
 from __future__ import annotations
 
 import shutil
-import warnings
 from abc import ABC, abstractmethod
 from pathlib import Path
 from typing import Any
@@ -130,12 +129,6 @@ class StoredResponse(BlockwiseResponse):
     def _materialise_blocks(self) -> list[Block]:
         # The stored chunks: each is read once, and an error names it.
         return self.blocks
-
-    def load(self) -> MaterialisedResponse:
-        """Deprecated: use :meth:`materialise`."""
-        warnings.warn("StoredResponse.load() is deprecated; use .materialise()",
-                      DeprecationWarning, stacklevel=2)
-        return self.materialise()
 
 
 @STORE_KINDS.register("dense")

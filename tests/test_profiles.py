@@ -8,7 +8,7 @@ import math
 import astropy.units as u
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from conftest import rad
@@ -113,6 +113,8 @@ def test_advanced_continuous_as_s_to_zero():
 
 
 @settings(max_examples=60, deadline=None)
+# Hypothesis found this one (the standard model's refusal of a zero-thickness mask): kept.
+@example(a=1.0, b=1.0, c=1.0, h=0.0, mu=0.0, theta=0.0, phi=0.0, x0=0.0, y0=0.0)
 @given(
     a=st.floats(0.0, 8.0), b=st.floats(0.0, 8.0), c=st.floats(0.05, 20.0),
     h=st.floats(0.0, 5.0), mu=st.sampled_from([0.0, 0.01, 1.0, 30.0, 1e6]),
@@ -131,6 +133,12 @@ def test_profiles_between_zero_and_one(a, b, c, h, mu, theta, phi, x0, y0):
         p = get_model(name).profile(inst, rad([theta]), rad([phi]), rad(xi))
         assert np.all((p >= 0.0) & (p <= 1.0)), name
     if math.isclose(a, b) and math.isclose(a, c):
+        if h == 0.0:
+            # Zero-thickness slats of finite mu stop nothing, while the standard model's stop
+            # all but its transmission: it refuses to describe that instrument.
+            with pytest.raises(ModelValidityError, match="mask.thickness = 0"):
+                StandardModel(0.3).profile(inst, rad([theta]), rad([phi]), rad(xi))
+            return
         p = StandardModel(0.3).profile(inst, rad([theta]), rad([phi]), rad(xi))
         assert np.all((p >= 0.0) & (p <= 1.0))
 

@@ -136,7 +136,7 @@ def test_profiles_between_zero_and_one(a, b, c, h, mu, theta, phi, x0, y0):
         if h == 0.0:
             # Zero-thickness slats of finite mu stop nothing, while the standard model's stop
             # all but its transmission: it refuses to describe that instrument.
-            with pytest.raises(ModelValidityError, match="mask.thickness = 0"):
+            with pytest.raises(ModelValidityError, match=r"mask\.thickness = 0"):
                 StandardModel(0.3).profile(inst, rad([theta]), rad([phi]), rad(xi))
             return
         p = StandardModel(0.3).profile(inst, rad([theta]), rad([phi]), rad(xi))

@@ -22,6 +22,7 @@ from rotmod.response import (
     build_response,
 )
 from rotmod.sky import SkyGrid
+from rotmod.testing import dot_test
 
 
 @pytest.fixture(scope="module")
@@ -141,25 +142,17 @@ def test_float32_and_detector_subset(inst, grid, mat):
     assert r32.adjoint(np.ones((7, 48))).dtype == np.float32
 
 
-def _dot_test(op, rng, rtol):
-    x = rng.random(op.n_sky)
-    y = rng.random((op.n_det, op.n_time))
-    lhs = float(np.vdot(op.forward(x).astype(np.float64), y))
-    rhs = float(np.vdot(x, op.adjoint(y).astype(np.float64)))
-    assert lhs == pytest.approx(rhs, rel=rtol)
-
-
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
 def test_dot_test_materialised(mat, seed):
     # float64 sums of ~24000 positive terms: relative rounding ~1e-15; allow 1e-12.
-    _dot_test(mat, np.random.default_rng(seed), 1e-12)
+    dot_test(mat, rng=np.random.default_rng(seed), rtol=1e-12)
 
 
 def test_dot_test_float32(inst, grid):
     r = build_response(inst, grid, 48, "advanced-approx")
     # float32 BLAS sums of up to 336 terms: relative error ~ 336 * 6e-8 worst case.
-    _dot_test(r, np.random.default_rng(1), 3e-5)
+    dot_test(r, rng=np.random.default_rng(1), rtol=3e-5)
 
 
 def test_sensitivity(mat):
@@ -231,7 +224,7 @@ def test_matrix_free_equals_materialised(mat, mfree):
 @settings(max_examples=10, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
 def test_dot_test_matrix_free(mfree, seed):
-    _dot_test(mfree, np.random.default_rng(seed), 1e-12)
+    dot_test(mfree, rng=np.random.default_rng(seed), rtol=1e-12)
 
 
 def test_matrix_free_average_mode(inst, grid):

@@ -256,6 +256,9 @@ def test_a_power_law_source_is_attenuated_band_by_band() -> None:
     assert np.mean(e0 < np.sqrt(lo * hi)) == pytest.approx(r / (1 + r), abs=0.03)
 
 
+# ~1500 pixels of the exact model, three times over, and a Monte Carlo (~10 s alone):
+# run by `-m slow`.
+@pytest.mark.slow
 def test_healpix_wide_field_images_and_equals_explicit_directions(tmp_path) -> None:
     from astropy.table import Table
 

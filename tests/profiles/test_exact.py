@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from numba import njit
 
-from conftest import rad
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import PAPER_SIGMA_662
 from rotmod.profiles import get_model, project
 from rotmod.profiles._exact_kernels import _clip_integral, exact_point
+from tests.conftest import rad
 
 #: Exponent beyond which the reference drops the transmission (< 2e-19).
 _REF_CUT = 43.0

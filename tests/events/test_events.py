@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from conftest import rad
 from rotmod import ParameterError, get_model
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.events import EventList, FoldedProfiles, exposure_per_bin, fold
 from rotmod.montecarlo import simulate_observation
 from rotmod.sky import PointSources
 from rotmod.testing import tiny_instrument
+from tests.conftest import rad
 
 
 def _inst(n_rings=0, T=60.0):

@@ -7,7 +7,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import rad
 from rotmod import RotmodError, get_model
 from rotmod.reconstruction import (
     ALGORITHMS,
@@ -30,6 +29,7 @@ from rotmod.reconstruction.metrics import (
 )
 from rotmod.sky.grid import SkyGrid
 from rotmod.testing import MatrixOperator, tiny_grid, tiny_instrument
+from tests.conftest import rad
 
 
 @pytest.fixture(scope="module")

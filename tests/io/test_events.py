@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from astropy.io import fits
 
-from conftest import rad
 from rotmod import Instrument, Mask, ParameterError, RotmodError
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.events import fold
@@ -14,6 +13,7 @@ from rotmod.io import read_events, read_folded, write_events, write_folded
 from rotmod.montecarlo import simulate_observation
 from rotmod.sky import PointSources
 from rotmod.testing import tiny_instrument
+from tests.conftest import rad
 
 
 @pytest.fixture(scope="module")

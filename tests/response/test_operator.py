@@ -10,7 +10,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.sparse.linalg import lsqr
 
-from conftest import rad
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import InstrumentMismatchError, ModelValidityError, ParameterError
 from rotmod.materials import PAPER_SIGMA_662
@@ -23,6 +22,7 @@ from rotmod.response import (
 )
 from rotmod.sky import SkyGrid
 from rotmod.testing import dot_test
+from tests.conftest import rad
 
 
 @pytest.fixture(scope="module")

@@ -549,6 +549,8 @@ def test_response_operators_as_built(tmp_path):
 # --------------------------------------------------------------------------- calibration
 
 
+# A least-squares fit over four Monte Carlo measurements (~10 s): run by `-m slow`.
+@pytest.mark.slow
 def test_calibration_recovers_offset_and_tilt():
     # The prototype with a 1 mm axis offset and a 0.2 deg tilt the analyst does not know,
     # measured with four sources at 2, 5 and 10 m (a tilt turns the mask about its centre,

@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import rad
 from rotmod import RotmodError, get_model
 from rotmod.reconstruction import (
     ALGORITHMS,
@@ -26,6 +25,7 @@ from rotmod.reconstruction.api import DEFAULT_METHOD
 from rotmod.reconstruction.metrics import evaluate, spurious_peak_level
 from rotmod.sky.grid import SkyGrid
 from rotmod.testing import MatrixOperator, tiny_instrument
+from tests.conftest import rad
 
 
 def _thin_operator(shape: tuple[int, int], pix: float, rings: int, n_t: int,

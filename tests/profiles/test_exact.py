@@ -18,7 +18,7 @@ from tests.conftest import rad
 _REF_CUT = 43.0
 
 
-@njit
+@njit(cache=True)  # compiled once, then loaded: ~0.5 s a run saved
 def _reference_clip(u1, u2, e1, e2, uc, radius, gl_x, gl_w):
     """∫_{u1}^{u2} exp(-E(u)) dΦ(u) for E linear from e1 at u1 to e2 at u2: the reference
     for the library's clip integral.

@@ -21,7 +21,7 @@ from rotmod.response import (
     build_response,
 )
 from rotmod.sky import SkyGrid
-from rotmod.testing import dot_test
+from rotmod.testing import MatrixOperator, dot_test
 from tests.conftest import rad
 
 
@@ -340,24 +340,10 @@ def test_every_builder_takes_one_spec(inst, grid):
 
 
 def test_block_and_materialise_are_the_same_values_for_every_operator(inst, grid, mat):
-    from rotmod.response.operator import ResponseOperator
-
-    class Columns(ResponseOperator):
-        """Only forward and adjoint: block and materialise come from the defaults."""
-
-        def __init__(self, matrix):
-            self.m = matrix
-            self.n_det, self.n_time, self.n_sky = matrix.shape
-
-        def _forward(self, sky):
-            return self.m @ sky
-
-        def _adjoint(self, counts):
-            return np.einsum("dtn,dt->n", self.m, counts)
-
     free = MatrixFreeResponse(inst, grid, 48, "advanced-approx", block_size=(7, 20))
     # (As test_matrix_free_equals_materialised: other kernel-call shapes, 1e-14.)
-    for op in (mat, free, Columns(mat.matrix)):
+    # MatrixOperator has only forward and adjoint: block and materialise are the defaults.
+    for op in (mat, free, MatrixOperator(mat.matrix)):
         np.testing.assert_allclose(op.block(t=(3, 40), n=(5, 61)), mat.matrix[:, 3:40, 5:61],
                                    rtol=0, atol=1e-14)
         np.testing.assert_allclose(op.materialise().matrix, mat.matrix, rtol=0, atol=1e-14)

@@ -37,6 +37,7 @@ from rotmod.config import load_instrument
 from rotmod.limits import MemoryBudgetError
 from rotmod.response import MatrixFreeResponse, RadonResponse, TimeBinning, build_response
 from rotmod.sky import SkyGrid
+from rotmod.testing import dot_test
 
 
 def median_time(fn, repeat: int) -> float:
@@ -53,14 +54,6 @@ def timed(fn):
     t = time.perf_counter()
     out = fn()
     return out, time.perf_counter() - t
-
-
-def dot_test(op, rng) -> float:
-    """Relative mismatch of <P x, y> and <x, P^T y> for random positive x, y (float64)."""
-    x = rng.random(op.n_sky)
-    y = rng.random((op.n_det, op.n_time))
-    lhs, rhs = float(np.vdot(op.forward(x), y)), float(np.vdot(x, op.adjoint(y)))
-    return abs(lhs - rhs) / abs(lhs)
 
 
 def peak_gib() -> float:
@@ -81,7 +74,7 @@ def part_accuracy(args) -> dict:
         rows.append({"case": f"paper grid, prototype, {energy:g} keV, {tb.mode}",
                      "values": int(err.size), "max": float(err.max()),
                      "rms": float(np.sqrt(np.mean(err**2))), "table": list(radon.table.shape),
-                     "setup_s": t_setup, "dot": dot_test(radon, np.random.default_rng(7))})
+                     "setup_s": t_setup, "dot": dot_test(radon, rng=np.random.default_rng(7))})
     rng = np.random.default_rng(2026)
     for _ in range(args.random):
         a, b = rng.uniform(0.3, 6.0, 2)
@@ -108,7 +101,7 @@ def part_accuracy(args) -> dict:
         rows.append({"case": name,
                      "values": int(err.size), "max": float(err.max()),
                      "rms": float(np.sqrt(np.mean(err**2))), "table": list(radon.table.shape),
-                     "setup_s": t_setup, "dot": dot_test(radon, rng)})
+                     "setup_s": t_setup, "dot": dot_test(radon, rng=rng)})
     return {"rows": rows}
 
 

@@ -1,7 +1,10 @@
 """Shared fixtures: a tiny paper instrument, a seeded RNG and the brute-force reference profile.
 
 Other test modules keep their own fixtures in their own files; only fixtures that several
-physics test modules share live here.
+physics test modules share live here.  Plain helpers are imported as
+``from tests.conftest import rad`` (tests/ is a package: see tests/__init__.py); what a
+user's tests could share too (dot test, test operator, tiny instrument) is in
+:mod:`rotmod.testing`.
 """
 
 from __future__ import annotations

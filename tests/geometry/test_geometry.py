@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from conftest import rad
 from rotmod.conventions import mask_coordinate, shadow_shift, source_direction
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.profiles import project
+from tests.conftest import rad
 
 
 @pytest.mark.parametrize(

@@ -6,18 +6,17 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from conftest import rad
-from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, get_model
+from rotmod import ParameterError, get_model
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.events import EventList, FoldedProfiles, exposure_per_bin, fold
 from rotmod.montecarlo import simulate_observation
 from rotmod.sky import PointSources
+from rotmod.testing import tiny_instrument
+from tests.conftest import rad
 
 
 def _inst(n_rings=0, T=60.0):
-    mat = Material("Pb", density=11.34, mass_attenuation=0.103)
-    det = DetectorArray.hexagonal(4.0, rings=n_rings)
-    return Instrument(Mask(4.0, 4.0, 2.0, 100.0, mat), det, T)
+    return tiny_instrument(rings=n_rings, rotation_period=T)
 
 
 # ----------------------------------------------------------------------------- exposure

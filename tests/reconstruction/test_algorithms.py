@@ -7,9 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import rad
-from rotmod import DetectorArray, Instrument, Mask, RotmodError, get_model
-from rotmod.materials import Material
+from rotmod import RotmodError, get_model
 from rotmod.reconstruction import (
     ALGORITHMS,
     MLEM,
@@ -29,36 +27,21 @@ from rotmod.reconstruction.metrics import (
     spurious_peak_level,
     two_source_dip,
 )
-from rotmod.response.operator import ResponseOperator
 from rotmod.sky.grid import SkyGrid
-
-
-class Dense(ResponseOperator):
-    """A tiny stored-matrix operator (the algorithms must only use forward/adjoint)."""
-
-    def __init__(self, P: np.ndarray, grid: SkyGrid | None = None) -> None:
-        self.P = np.asarray(P, dtype=float)
-        self.n_det, self.n_time, self.n_sky = self.P.shape
-        self.grid = grid
-
-    def _forward(self, sky: np.ndarray) -> np.ndarray:
-        return self.P @ sky
-
-    def _adjoint(self, counts: np.ndarray) -> np.ndarray:
-        return np.einsum("dtn,dt->n", self.P, counts)
+from rotmod.testing import MatrixOperator, tiny_grid, tiny_instrument
+from tests.conftest import rad
 
 
 @pytest.fixture(scope="module")
-def small() -> Dense:
-    mat = Material("Pb", density=11.34, mass_attenuation=0.103)
-    inst = Instrument(Mask(4.0, 4.0, 2.0, 100.0, mat), DetectorArray.hexagonal(4.0, rings=1))
-    grid = SkyGrid((11, 11), 0.6)
+def small() -> MatrixOperator:
+    inst = tiny_instrument()  # lead a = b = c = 4, h = 2, L = 100 cm, 7 detectors
+    grid = tiny_grid()  # 11 x 11 pixels of 0.6 deg
     th, ph = grid.directions()
     xi = (np.arange(90) + 0.5) * 2 * np.pi / 90
-    return Dense(get_model("standard").profile(inst, rad(th), rad(ph), rad(xi)), grid)
+    return MatrixOperator(get_model("standard").profile(inst, rad(th), rad(ph), rad(xi)), grid)
 
 
-def _point(R: Dense, iy: int, ix: int, flux: float = 5.0) -> np.ndarray:
+def _point(R: MatrixOperator, iy: int, ix: int, flux: float = 5.0) -> np.ndarray:
     s = np.zeros(R.n_sky)
     s[iy * R.grid.shape[1] + ix] = flux
     return s
@@ -67,7 +50,7 @@ def _point(R: Dense, iy: int, ix: int, flux: float = 5.0) -> np.ndarray:
 @pytest.mark.parametrize(
     "method", ["backprojection", "mlem", "mart", "sirt", "ncar", "osem", "sgp", "sparse"]
 )
-def test_noiseless_point_source_lands_on_its_pixel(small: Dense, method: str) -> None:
+def test_noiseless_point_source_lands_on_its_pixel(small: MatrixOperator, method: str) -> None:
     E = 50.0
     y = E * (small.forward(_point(small, 3, 7)) + 2.0)
     res = reconstruct(small, y, method, exposure=E, background=2.0, seed=0, max_iter=300)
@@ -91,7 +74,7 @@ def test_mlem_likelihood_never_decreases_and_stays_nonnegative(seed: int, n_src:
     s[rng.choice(12, n_src, replace=False)] = rng.uniform(1, 10, n_src)
     y = rng.poisson(3.0 * (P @ s + bkg)).astype(float)
     data = PoissonData(y, 3.0, background=bkg if bkg > 0 else None, fit_background=bkg > 0)
-    solver = MLEM(Dense(P), data, max_iter=60, chi2_dof=None, rel_tol=None)
+    solver = MLEM(MatrixOperator(P), data, max_iter=60, chi2_dof=None, rel_tol=None)
     solver.setup()
     ll = [log_likelihood(y, solver.mu)]
     for _ in range(60):
@@ -102,7 +85,7 @@ def test_mlem_likelihood_never_decreases_and_stays_nonnegative(seed: int, n_src:
     assert np.all(np.diff(ll) >= -1e-12 * np.abs(ll[:-1]).max())
 
 
-def test_mart_images_nonnegative(small: Dense) -> None:
+def test_mart_images_nonnegative(small: MatrixOperator) -> None:
     rng = np.random.default_rng(4)
     y = rng.poisson(10.0 * (small.forward(_point(small, 5, 5)) + 1.0))
     for ns in (1, 3):
@@ -111,7 +94,7 @@ def test_mart_images_nonnegative(small: Dense) -> None:
         assert np.all(res.image >= 0)
 
 
-def test_stopping_rule_triggers_at_the_stated_fit_level(small: Dense) -> None:
+def test_stopping_rule_triggers_at_the_stated_fit_level(small: MatrixOperator) -> None:
     rng = np.random.default_rng(5)
     y = rng.poisson(20.0 * (small.forward(_point(small, 5, 5, 20.0)) + 3.0))
     for target in (1.2, 1.05):
@@ -130,14 +113,14 @@ def test_stopping_rule_triggers_at_the_stated_fit_level(small: Dense) -> None:
     assert res.n_iter == 7 and res.stop_reason.startswith("max_iter")
 
 
-def test_callback_can_stop(small: Dense) -> None:
+def test_callback_can_stop(small: MatrixOperator) -> None:
     y = 10.0 * (small.forward(_point(small, 5, 5)) + 1.0)
     res = reconstruct(small, y, "mlem", exposure=10.0, background=1.0,
                       callbacks=[lambda s, i: i >= 3])
     assert res.n_iter == 3 and "callback" in res.stop_reason
 
 
-def test_bootstrap_uncertainty_scales_like_sqrt_counts(small: Dense) -> None:
+def test_bootstrap_uncertainty_scales_like_sqrt_counts(small: MatrixOperator) -> None:
     s = _point(small, 5, 5, 10.0)
     sig = []
     for E in (10.0, 160.0):
@@ -151,7 +134,7 @@ def test_bootstrap_uncertainty_scales_like_sqrt_counts(small: Dense) -> None:
     assert 3.0 < sig[0] / sig[1] < 5.3
 
 
-def test_bootstrap_is_seeded(small: Dense) -> None:
+def test_bootstrap_is_seeded(small: MatrixOperator) -> None:
     y = np.round(20.0 * (small.forward(_point(small, 5, 5)) + 2.0))
     kw = dict(exposure=20.0, background=2.0, uncertainty="bootstrap", n_boot=3, max_iter=5)
     a = reconstruct(small, y, "mlem", seed=7, **kw).uncertainty
@@ -160,7 +143,7 @@ def test_bootstrap_is_seeded(small: Dense) -> None:
 
 
 @pytest.mark.parametrize("method", sorted(ALGORITHMS))
-def test_bootstrap_works_for_every_method(small: Dense, method: str) -> None:
+def test_bootstrap_works_for_every_method(small: MatrixOperator, method: str) -> None:
     # NCAR (randomised: its own seed) used to raise TypeError "multiple values for 'seed'".
     y = np.round(20.0 * (small.forward(_point(small, 5, 5)) + 2.0))
     kw = dict(exposure=20.0, background=2.0, uncertainty="bootstrap", n_boot=3, max_iter=5)
@@ -171,7 +154,7 @@ def test_bootstrap_works_for_every_method(small: Dense, method: str) -> None:
     np.testing.assert_array_equal(a.uncertainty, b.uncertainty)  # seeded, replicas included
 
 
-def test_ncar_noise_layers_seeded_and_consistent(small: Dense) -> None:
+def test_ncar_noise_layers_seeded_and_consistent(small: MatrixOperator) -> None:
     rng = np.random.default_rng(2)
     y = rng.poisson(20.0 * (small.forward(_point(small, 4, 6, 10.0)) + 3.0))
     kw = dict(exposure=20.0, background=3.0, n_layers=3)
@@ -185,7 +168,7 @@ def test_ncar_noise_layers_seeded_and_consistent(small: Dense) -> None:
     assert a.chi2_dof <= a.extras["unlayered_chi2_dof"] + 0.1
 
 
-def test_bad_input_raises_naming_the_parameter(small: Dense) -> None:
+def test_bad_input_raises_naming_the_parameter(small: MatrixOperator) -> None:
     y = np.ones((small.n_det, small.n_time))
     with pytest.raises(RotmodError, match="counts must have shape"):
         reconstruct(small, np.ones((2, 3)), "mlem")
@@ -224,7 +207,7 @@ class _FluxScale(Reconstructor):
         self.mu = self.model.forward(self.z)
 
 
-def test_a_new_algorithm_is_one_registered_class(small: Dense) -> None:
+def test_a_new_algorithm_is_one_registered_class(small: MatrixOperator) -> None:
     # What an algorithm's module does when imported (the same class again is a no-op).
     name = "test-flux-scale"
     register_algorithm(name)(_FluxScale)

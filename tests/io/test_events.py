@@ -6,19 +6,19 @@ import numpy as np
 import pytest
 from astropy.io import fits
 
-from conftest import rad
-from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, RotmodError
+from rotmod import Instrument, Mask, ParameterError, RotmodError
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.events import fold
 from rotmod.io import read_events, read_folded, write_events, write_folded
 from rotmod.montecarlo import simulate_observation
 from rotmod.sky import PointSources
+from rotmod.testing import tiny_instrument
+from tests.conftest import rad
 
 
 @pytest.fixture(scope="module")
 def events():
-    mat = Material("Pb", density=11.34, mass_attenuation=0.103)
-    inst = Instrument(Mask(4.0, 4.0, 2.0, 100.0, mat), DetectorArray.hexagonal(3.8, rings=1), 30.0)
+    inst = tiny_instrument(diameter=3.8, rotation_period=30.0)
     src = PointSources([6.0, 12.0], rad([0.3, 2.0]), rate=[40.0, 10.0], energy=662.0)
     return simulate_observation(inst, src, t_stop=100.0, gti=[[0, 40], [55.5, 97.0]],
                                 start_phase=rad(0.4), background=2.0, seed=8)

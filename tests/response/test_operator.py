@@ -10,7 +10,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.sparse.linalg import lsqr
 
-from conftest import rad
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import InstrumentMismatchError, ModelValidityError, ParameterError
 from rotmod.materials import PAPER_SIGMA_662
@@ -22,6 +21,8 @@ from rotmod.response import (
     build_response,
 )
 from rotmod.sky import SkyGrid
+from rotmod.testing import MatrixOperator, dot_test
+from tests.conftest import rad
 
 
 @pytest.fixture(scope="module")
@@ -141,25 +142,17 @@ def test_float32_and_detector_subset(inst, grid, mat):
     assert r32.adjoint(np.ones((7, 48))).dtype == np.float32
 
 
-def _dot_test(op, rng, rtol):
-    x = rng.random(op.n_sky)
-    y = rng.random((op.n_det, op.n_time))
-    lhs = float(np.vdot(op.forward(x).astype(np.float64), y))
-    rhs = float(np.vdot(x, op.adjoint(y).astype(np.float64)))
-    assert lhs == pytest.approx(rhs, rel=rtol)
-
-
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
 def test_dot_test_materialised(mat, seed):
     # float64 sums of ~24000 positive terms: relative rounding ~1e-15; allow 1e-12.
-    _dot_test(mat, np.random.default_rng(seed), 1e-12)
+    dot_test(mat, rng=np.random.default_rng(seed), rtol=1e-12)
 
 
 def test_dot_test_float32(inst, grid):
     r = build_response(inst, grid, 48, "advanced-approx")
     # float32 BLAS sums of up to 336 terms: relative error ~ 336 * 6e-8 worst case.
-    _dot_test(r, np.random.default_rng(1), 3e-5)
+    dot_test(r, rng=np.random.default_rng(1), rtol=3e-5)
 
 
 def test_sensitivity(mat):
@@ -231,7 +224,7 @@ def test_matrix_free_equals_materialised(mat, mfree):
 @settings(max_examples=10, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
 def test_dot_test_matrix_free(mfree, seed):
-    _dot_test(mfree, np.random.default_rng(seed), 1e-12)
+    dot_test(mfree, rng=np.random.default_rng(seed), rtol=1e-12)
 
 
 def test_matrix_free_average_mode(inst, grid):
@@ -347,24 +340,10 @@ def test_every_builder_takes_one_spec(inst, grid):
 
 
 def test_block_and_materialise_are_the_same_values_for_every_operator(inst, grid, mat):
-    from rotmod.response.operator import ResponseOperator
-
-    class Columns(ResponseOperator):
-        """Only forward and adjoint: block and materialise come from the defaults."""
-
-        def __init__(self, matrix):
-            self.m = matrix
-            self.n_det, self.n_time, self.n_sky = matrix.shape
-
-        def _forward(self, sky):
-            return self.m @ sky
-
-        def _adjoint(self, counts):
-            return np.einsum("dtn,dt->n", self.m, counts)
-
     free = MatrixFreeResponse(inst, grid, 48, "advanced-approx", block_size=(7, 20))
     # (As test_matrix_free_equals_materialised: other kernel-call shapes, 1e-14.)
-    for op in (mat, free, Columns(mat.matrix)):
+    # MatrixOperator has only forward and adjoint: block and materialise are the defaults.
+    for op in (mat, free, MatrixOperator(mat.matrix)):
         np.testing.assert_allclose(op.block(t=(3, 40), n=(5, 61)), mat.matrix[:, 3:40, 5:61],
                                    rtol=0, atol=1e-14)
         np.testing.assert_allclose(op.materialise().matrix, mat.matrix, rtol=0, atol=1e-14)

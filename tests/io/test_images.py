@@ -8,28 +8,15 @@ import pytest
 from rotmod import RotmodError
 from rotmod.io.images import read_image, write_image
 from rotmod.reconstruction import reconstruct
-from rotmod.response.operator import ResponseOperator
 from rotmod.sky import Attitude, HealpixGrid
 from rotmod.sky.grid import SkyGrid
-
-
-class Dense(ResponseOperator):
-    def __init__(self, P: np.ndarray, grid: SkyGrid) -> None:
-        self.P = P
-        self.n_det, self.n_time, self.n_sky = P.shape
-        self.grid = grid
-
-    def _forward(self, sky: np.ndarray) -> np.ndarray:
-        return self.P @ sky
-
-    def _adjoint(self, counts: np.ndarray) -> np.ndarray:
-        return np.einsum("dtn,dt->n", self.P, counts)
+from rotmod.testing import MatrixOperator
 
 
 def test_fits_round_trip_with_wcs(tmp_path) -> None:
     grid = SkyGrid((6, 8), 0.5, center=(10.0, -3.0))
     rng = np.random.default_rng(0)
-    R = Dense(rng.uniform(0, 1, (2, 30, grid.size)), grid)
+    R = MatrixOperator(rng.uniform(0, 1, (2, 30, grid.size)), grid)
     s = np.zeros(grid.size)
     s[13] = 4.0
     y = rng.poisson(5.0 * (R.forward(s) + 1.0))

@@ -11,7 +11,6 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from conftest import rad
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import PAPER_SIGMA_662, Material
@@ -27,6 +26,7 @@ from rotmod.profiles import (
 from rotmod.profiles.advanced import advanced_point, alpha_factor
 from rotmod.profiles.exact import exact_point
 from rotmod.profiles.standard import segment_fraction
+from tests.conftest import rad
 
 ALL = ["standard", "advanced", "advanced-approx", "advanced-g0", "exact"]
 

@@ -64,7 +64,7 @@ def test_c_large_zenith_standard_misplaces() -> None:
 def test_d_lab_prototype_two_sources_resolved() -> None:
     sc = make_scenario("d", "small", seed=1)
     # The SIRT core (NCAR's design before issue 11; the SGP core is tested in
-    # test_reconstruction_fast.py).
+    # reconstruction/test_fast.py).
     m = _run(sc, "advanced-approx", "ncar", n_layers=0, core="sirt", stopping=sc.stopping)
     # Resolved: a dip well below 0.9 between the peaks (measured 0.74; 0.81 is Rayleigh's),
     # each peak on its source's pixel (measured 0; one pixel is 0.146 deg).

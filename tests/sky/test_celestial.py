@@ -12,10 +12,11 @@ from astropy.coordinates import SkyCoord
 from rotmod.config import load_instrument
 from rotmod.errors import ParameterError
 from rotmod.events import fold
+from rotmod.geometry import Instrument
 from rotmod.montecarlo import simulate_observation
 from rotmod.reconstruction import reconstruct
 from rotmod.response import TimeBinning, build_response
-from rotmod.sky import Attitude, CelestialGrid, PointSources, grid_from_dict
+from rotmod.sky import Attitude, CelestialGrid, HealpixGrid, PointSources, grid_from_dict
 
 
 def test_wcs_has_east_left_and_north_up() -> None:
@@ -256,19 +257,23 @@ def test_a_power_law_source_is_attenuated_band_by_band() -> None:
     assert np.mean(e0 < np.sqrt(lo * hi)) == pytest.approx(r / (1 + r), abs=0.03)
 
 
-def test_healpix_wide_field_images_and_equals_explicit_directions(tmp_path) -> None:
-    from astropy.table import Table
+_WIDE_ATT = Attitude(300.0, 40.0, -15.0)
 
-    from rotmod.io.images import write_image
+
+@pytest.fixture(scope="module")
+def wide() -> tuple[HealpixGrid, Instrument, TimeBinning]:
+    """A 45 deg cone (beyond the tangent grids' comfort) at nside 32 (1.8 deg pixels), the
+    prototype and 60 time bins."""
+    grid = HealpixGrid(32, 300.0, 40.0, 45.0, _WIDE_ATT)
+    return grid, load_instrument("prototype"), TimeBinning(60)
+
+
+def test_healpix_wide_field_equals_explicit_directions(wide) -> None:
     from rotmod.response import MatrixFreeResponse
-    from rotmod.sky import HealpixGrid, SkyGeometry
+    from rotmod.sky import SkyGeometry
 
-    att = Attitude(300.0, 40.0, -15.0)
-    # A 45 deg cone (beyond the tangent grids' comfort) at nside 32 (1.8 deg pixels).
-    grid = HealpixGrid(32, 300.0, 40.0, 45.0, att)
+    grid, inst, tb = wide
     assert grid.size > 1500 and grid_from_dict(grid.to_dict()) == grid
-    inst = load_instrument("prototype")
-    tb = TimeBinning(60)
 
     class Explicit(SkyGeometry):  # the same pixel directions handed over as a plain list
         size, shape = grid.size, grid.shape
@@ -290,8 +295,17 @@ def test_healpix_wide_field_images_and_equals_explicit_directions(tmp_path) -> N
     x = np.random.default_rng(0).random(grid.size)
     np.testing.assert_array_equal(a.forward(x), b.forward(x))
 
+
+# The default method's ~900 iterations on ~1500 pixels (~7 s of the ~9): run by `-m slow`.
+@pytest.mark.slow
+def test_healpix_wide_field_images(wide, tmp_path) -> None:
+    from astropy.table import Table
+
+    from rotmod.io.images import write_image
+
+    grid, inst, tb = wide
     true = SkyCoord(310.0 * u.deg, 55.0 * u.deg)  # 18 deg off axis
-    src = PointSources.from_sky(true, att, rate=30.0, energy=122.0)
+    src = PointSources.from_sky(true, _WIDE_ATT, rate=30.0, energy=122.0)
     folded = fold(simulate_observation(inst, src, t_stop=1200.0, background=5.0, seed=3), 60)
     res = reconstruct(build_response(inst, grid, tb, energy=122, dtype=np.float64), folded)
     brightest = grid.sky_coords()[int(np.argmax(res.image))]

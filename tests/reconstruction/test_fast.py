@@ -10,9 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import rad
-from rotmod import DetectorArray, Instrument, Mask, RotmodError, get_model
-from rotmod.materials import Material
+from rotmod import RotmodError, get_model
 from rotmod.reconstruction import (
     ALGORITHMS,
     OSEM,
@@ -25,63 +23,45 @@ from rotmod.reconstruction import (
 )
 from rotmod.reconstruction.api import DEFAULT_METHOD
 from rotmod.reconstruction.metrics import evaluate, spurious_peak_level
-from rotmod.response.operator import ResponseOperator
 from rotmod.sky.grid import SkyGrid
-
-
-class Counting(ResponseOperator):
-    """A stored-matrix operator that counts its products (algorithms see only the operator)."""
-
-    def __init__(self, P: np.ndarray, grid: SkyGrid) -> None:
-        self.P = np.asarray(P, dtype=float)
-        self.n_det, self.n_time, self.n_sky = self.P.shape
-        self.grid = grid
-        self.calls = 0
-
-    def _forward(self, sky: np.ndarray) -> np.ndarray:
-        self.calls += 1
-        return self.P @ sky
-
-    def _adjoint(self, counts: np.ndarray) -> np.ndarray:
-        self.calls += 1
-        return np.einsum("dtn,dt->n", self.P, counts)
+from rotmod.testing import MatrixOperator, tiny_instrument
+from tests.conftest import rad
 
 
 def _thin_operator(shape: tuple[int, int], pix: float, rings: int, n_t: int,
-                   center=(0.0, 0.0)) -> Counting:
-    mat = Material("Pb", density=11.34, mass_attenuation=0.103)
-    inst = Instrument(Mask(4.0, 4.0, 0.5, 100.0, mat), DetectorArray.hexagonal(4.0, rings=rings))
+                   center=(0.0, 0.0)) -> MatrixOperator:
+    inst = tiny_instrument(thickness=0.5, rings=rings)
     grid = SkyGrid(shape, pix, center)
     th, ph = grid.directions()
     xi = (np.arange(n_t) + 0.5) * 2 * np.pi / n_t
-    return Counting(get_model("exact").profile(inst, rad(th), rad(ph), rad(xi), energy=662),
-                    grid)
+    return MatrixOperator(get_model("exact").profile(inst, rad(th), rad(ph), rad(xi), energy=662),
+                          grid)
 
 
 @pytest.fixture(scope="module")
-def thin() -> Counting:
+def thin() -> MatrixOperator:
     """Seven detectors, 9 x 9 pixels of 0.6 deg, 90 time bins."""
     return _thin_operator((9, 9), 0.6, 1, 90)
 
 
 @pytest.fixture(scope="module")
-def pair_op() -> Counting:
+def pair_op() -> MatrixOperator:
     """Nineteen detectors, 13 x 13 pixels of 0.3 deg around (1, 0) deg, 120 time bins."""
     return _thin_operator((13, 13), 0.3, 2, 120, center=(1.0, 0.0))
 
 
-def _sky(op: Counting, pixels: list[tuple[int, int]], flux: float) -> np.ndarray:
+def _sky(op: MatrixOperator, pixels: list[tuple[int, int]], flux: float) -> np.ndarray:
     s = np.zeros(op.n_sky)
     for iy, ix in pixels:
         s[iy * op.grid.shape[1] + ix] = flux
     return s
 
 
-def _noisy(op: Counting, sky: np.ndarray, E: float, bkg: float, seed: int) -> np.ndarray:
+def _noisy(op: MatrixOperator, sky: np.ndarray, E: float, bkg: float, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).poisson(E * (op.forward(sky) + bkg)).astype(float)
 
 
-def test_sgp_reaches_the_likelihood_of_10000_mlem_iterations(thin: Counting) -> None:
+def test_sgp_reaches_the_likelihood_of_10000_mlem_iterations(thin: MatrixOperator) -> None:
     E, bkg = 20.0, 5.0
     y = _noisy(thin, _sky(thin, [(3, 5), (6, 2)], 8.0), E, bkg, seed=1)
     kw = dict(exposure=E, background=bkg, chi2_dof=None, rel_tol=None)
@@ -100,7 +80,8 @@ def test_sgp_reaches_the_likelihood_of_10000_mlem_iterations(thin: Counting) -> 
     assert np.all(sgp.image >= 0)
 
 
-def test_sgp_objective_never_increases_beyond_its_nonmonotone_reference(thin: Counting) -> None:
+def test_sgp_objective_never_increases_beyond_its_nonmonotone_reference(
+        thin: MatrixOperator) -> None:
     y = _noisy(thin, _sky(thin, [(4, 4)], 10.0), 10.0, 3.0, seed=2)
     solver = SGP(thin, PoissonData(y, 10.0, 3.0), max_iter=100, rel_tol=None)
     solver.setup()
@@ -116,7 +97,7 @@ def test_sgp_objective_never_increases_beyond_its_nonmonotone_reference(thin: Co
     assert f[-1] < f[0]
 
 
-def test_osem_fixed_point_equals_mlem_on_consistent_data(thin: Counting) -> None:
+def test_osem_fixed_point_equals_mlem_on_consistent_data(thin: MatrixOperator) -> None:
     # Noise-free counts: the maximum of the likelihood is an exact fit, mu = y.  Both EM
     # variants, from the same flat start, must reach it and the same image.
     truth = _sky(thin, [(2, 2), (6, 5)], 6.0) + 0.5
@@ -132,7 +113,7 @@ def test_osem_fixed_point_equals_mlem_on_consistent_data(thin: Counting) -> None
     assert np.max(np.abs(os_.image - ml.image)) < 0.01 * truth.max()
 
 
-def test_osem_is_faster_than_mlem_early(thin: Counting) -> None:
+def test_osem_is_faster_than_mlem_early(thin: MatrixOperator) -> None:
     y = _noisy(thin, _sky(thin, [(3, 5)], 10.0), 20.0, 4.0, seed=3)
     kw = dict(exposure=20.0, background=4.0, chi2_dof=None, rel_tol=None, max_iter=10)
     ll_os = log_likelihood(y, reconstruct(thin, y, "osem", n_subsets=7, **kw).model_counts)
@@ -145,7 +126,7 @@ def test_osem_is_faster_than_mlem_early(thin: Counting) -> None:
     assert ll_os > ll_ml + 0.5 * (ll_ml70 - ll_ml)
 
 
-def test_every_new_method_keeps_the_sky_nonnegative(thin: Counting) -> None:
+def test_every_new_method_keeps_the_sky_nonnegative(thin: MatrixOperator) -> None:
     rng = np.random.default_rng(4)
     for seed in range(3):
         sky = _sky(thin, [tuple(rng.integers(0, 9, 2))], float(rng.uniform(1, 10)))
@@ -167,7 +148,7 @@ def test_thinned_halves_are_independent_poisson_with_half_the_mean() -> None:
     assert abs(np.corrcoef(a, b)[0, 1]) < 0.011
 
 
-def test_weight_selection_on_known_cases(thin: Counting) -> None:
+def test_weight_selection_on_known_cases(thin: MatrixOperator) -> None:
     E, bkg = 20.0, 5.0
     sens = E * thin.sensitivity()
     # No source at all: the held-out halves find nothing to predict, and the one-standard-
@@ -191,20 +172,21 @@ def test_weight_selection_on_known_cases(thin: Counting) -> None:
     assert np.unravel_index(np.argmax(res.image), res.image.shape) == (3, 5)
 
 
-def test_ncar_on_the_sgp_core_costs_under_five_mlem_runs(pair_op: Counting) -> None:
+def test_ncar_on_the_sgp_core_costs_under_five_mlem_runs(pair_op: MatrixOperator) -> None:
     y = _noisy(pair_op, _sky(pair_op, [(6, 4), (6, 8)], 10.0), 10.0, 8.0, seed=8)
     kw = dict(exposure=10.0, background=8.0)
-    pair_op.calls = 0
+    pair_op.reset_counts()
     reconstruct(pair_op, y, "mlem", **kw)
     mlem_calls = pair_op.calls
-    pair_op.calls = 0
+    pair_op.reset_counts()
     reconstruct(pair_op, y, "ncar", seed=1, **kw)
     # Operator products (forward + adjoint) as the machine-independent cost: the issue's
     # budget is 5 MLEM runs of the same data (MLEM runs its default 500 iterations here).
     assert pair_op.calls <= 5 * mlem_calls
 
 
-def test_default_method_resolves_a_thin_mask_pair_that_mlem_does_not(pair_op: Counting) -> None:
+def test_default_method_resolves_a_thin_mask_pair_that_mlem_does_not(
+        pair_op: MatrixOperator) -> None:
     # Reduced thin-mask scenario: two equal sources 1.2 deg (0.52 b/L) apart, 19
     # detectors, flat background counts ~ the sources' counts; ~1.1e6 counts.
     src = _sky(pair_op, [(4, 6), (8, 6)], 10.0)
@@ -236,8 +218,8 @@ def test_default_method_resolves_a_prototype_pair_at_30_arcmin() -> None:
     grid = SkyGrid((15, 15), pix, (1.0, 0.0))
     th, ph = grid.directions()
     xi = (np.arange(120) + 0.5) * 2 * np.pi / 120
-    op = Counting(get_model("exact").profile(inst, rad(th), rad(ph), rad(xi), energy=122),
-                  grid)
+    op = MatrixOperator(get_model("exact").profile(inst, rad(th), rad(ph), rad(xi), energy=122),
+                        grid)
     src, E = _sky(op, [(4, 7), (10, 7)], 60.0), 30.0
     bkg = float(np.mean(op.forward(src)))
     sources = grid.from_tangent(np.array([1.0, 1.0]), np.array([-3 * pix, 3 * pix]))
@@ -269,7 +251,7 @@ def test_spurious_relative_to_the_weakest_source() -> None:
                                relative_to="weakest") == pytest.approx(0.4)
 
 
-def test_new_methods_refuse_bad_parameters(thin: Counting) -> None:
+def test_new_methods_refuse_bad_parameters(thin: MatrixOperator) -> None:
     y = np.ones((thin.n_det, thin.n_time))
     with pytest.raises(RotmodError, match="n_subsets must be an integer in"):
         reconstruct(thin, y, "osem", n_subsets=0)

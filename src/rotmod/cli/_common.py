@@ -12,7 +12,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rotmod.errors import RotmodError
+from rotmod.io import figures as io_figures
+from rotmod.io import tables as io_tables
 from rotmod.io.atomic import check_overwrite
+from rotmod.io.config import load_instrument_config
 from rotmod.registry import Registry
 
 if TYPE_CHECKING:
@@ -93,8 +96,6 @@ def add_output(p: argparse.ArgumentParser, *, required: bool = True, help: str =
 
 
 def load_config(args: argparse.Namespace) -> InstrumentConfig:
-    from rotmod.config import load_instrument_config
-
     return load_instrument_config(args.instrument)
 
 
@@ -253,20 +254,16 @@ def write_table(table: Any, path: Path) -> Path:
 
     The output was checked (:func:`check_output`) before the work that made the table.
     """
-    from rotmod.io.tables import write_table as write  # astropy.table: the CLI starts fast
-
-    return write(table, path, overwrite=True)
+    return io_tables.write_table(table, path, overwrite=True)
 
 
 def save_figure(fig: Any, path: Path, dpi: int = 120) -> Path:
     """Save and close a matplotlib figure atomically (Agg backend)."""
     import matplotlib.pyplot as plt
 
-    from rotmod.io.figures import save_figure as save  # the CLI starts fast
-
     try:
         # The output was checked (check_plot) before the work that made the figure.
-        return save(fig, path, dpi=dpi, overwrite=True)
+        return io_figures.save_figure(fig, path, dpi=dpi, overwrite=True)
     finally:
         plt.close(fig)
 

@@ -25,6 +25,8 @@ from rotmod.cli._common import (
     use_agg,
     write_table,
 )
+from rotmod.design import scan_designs
+from rotmod.plotting.design import plot_design_tradeoff
 
 
 def _weights(text: str) -> tuple[float, float, float]:
@@ -86,8 +88,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rotmod.design import scan_designs
-
     out = check_output(args.output, args.overwrite)
     plot = check_plot(args.plot, args.overwrite)
     cfg = load_config(args)
@@ -135,7 +135,6 @@ def run(args: argparse.Namespace) -> int:
     say(f"rotmod: wrote {out}")
     if plot is not None:
         use_agg()
-        from rotmod.plotting.design import plot_design_tradeoff
 
         ax = plot_design_tradeoff(scan, weights=args.weights, best=best)
         save_figure(ax.figure, plot)

@@ -11,7 +11,15 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle, as_angle_scalar, as_array, as_distance, as_scalar
+from rotmod._validate import (
+    as_angle,
+    as_angle_scalar,
+    as_array,
+    as_distance,
+    as_energy_scalar,
+    as_scalar,
+)
+from rotmod.energy import EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, check_gti
 from rotmod.geometry import Instrument, disc_flux
@@ -263,7 +271,7 @@ def simulate_profiles(
         xs = 0.5 * (edges[1:] + edges[:-1])
     n_photons = _check_count(n_photons, "n_photons", 1)
     chunk_size = _check_count(chunk_size, "chunk_size", 1)
-    e = None if energy is None else as_scalar(energy, "energy", u.keV, lo=0.0, lo_open=True)
+    e = None if energy is None else as_energy_scalar(energy, "energy")
     dist = as_distance(distance, th.size)
     if not isinstance(poisson, bool | np.bool_):
         raise ParameterError(f"poisson must be True or False, got {poisson!r}")
@@ -500,7 +508,7 @@ def simulate_observation(
             )
         e_bkg = float(uniq[0])
     else:
-        e_bkg = as_scalar(background_energy, "background_energy", u.keV, lo=0.0, lo_open=True)
+        e_bkg = as_energy_scalar(background_energy, "background_energy")
     chunk_size = _check_count(chunk_size, "chunk_size", 1)
     mu = _mu_for(inst, sources.energy)
     a, b, L, h, thin = _mask_params(inst)
@@ -578,8 +586,6 @@ def simulate_observation(
             sources.band[s, 0], sources.band[s, 1], np.random.default_rng(root.spawn(1)[0])
         ).astype(np.float32)
     if resolution is not None:
-        from rotmod.energy import EnergyResolution
-
         if not isinstance(resolution, EnergyResolution):
             raise ParameterError(f"resolution must be an EnergyResolution, got {resolution!r}")
         # Its own stream (spawned after the transport's): the same seed gives the same

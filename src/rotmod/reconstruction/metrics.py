@@ -17,6 +17,7 @@ import astropy.units as u
 import numpy as np
 
 from rotmod._validate import as_angle
+from rotmod.conventions import source_direction
 from rotmod.errors import ParameterError
 
 __all__ = [
@@ -51,8 +52,6 @@ def angular_distance(grid: Any, x1: Any, y1: Any, x2: Any, y2: Any) -> np.ndarra
     """Great-circle angle (deg) between tangent-plane points ``(x1, y1)`` and ``(x2, y2)``."""
     t1, p1 = (v.to_value(u.rad) for v in grid.from_tangent(x1, y1))
     t2, p2 = (v.to_value(u.rad) for v in grid.from_tangent(x2, y2))
-    from rotmod.conventions import source_direction
-
     chord = np.linalg.norm(source_direction(t1, p1) - source_direction(t2, p2), axis=-1)
     # 2 arcsin(chord / 2) keeps full precision at small angles (arccos does not).
     return np.degrees(2 * np.arcsin(np.clip(chord / 2, 0.0, 1.0)))

@@ -17,13 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from rotmod._validate import as_distance, as_float_dtype, as_scalar
+from rotmod._validate import as_distance, as_energy_scalar, as_float_dtype
 from rotmod.binning import TimeBinning
-from rotmod.conventions import ENERGY_UNIT
 from rotmod.errors import InstrumentMismatchError, ParameterError
 from rotmod.geometry import Instrument
+from rotmod.profiles import StandardModel
 from rotmod.profiles.base import DEFAULT_MODEL, MODELS, ProfileModel, get_model
-from rotmod.sky.geometry import SkyGeometry
+from rotmod.sky.geometry import SkyGeometry, grid_from_dict
 
 __all__ = ["ResponseSpec", "as_spec", "check_response_matches", "describe", "restore_fields"]
 
@@ -118,7 +118,7 @@ class ResponseSpec:
         dt = as_float_dtype(self.dtype)
         inst = _select_detectors(instrument, detectors)
         e = self.energy
-        e = None if e is None else as_scalar(e, "energy", ENERGY_UNIT, lo=0.0, lo_open=True)
+        e = None if e is None else as_energy_scalar(e, "energy")
         mdl = get_model(self.model)
         dist = None
         if self.distance is not None:
@@ -256,10 +256,6 @@ def restore_fields(meta: dict[str, Any]) -> dict[str, Any]:
     """The objects stored metadata describes: ``instrument``, ``grid``, ``time_bins``,
     ``model``, ``energy``, ``distance`` and ``dtype`` (``None`` where absent; ``model``
     also ``None`` when it is not a model this rotmod knows with these parameters)."""
-    # Function-local: rotmod.sky imports astropy's coordinates and WCS machinery, which only
-    # a stored response's metadata needs here.
-    from rotmod.sky import grid_from_dict
-
     out: dict[str, Any] = {}
     inst = meta.get("instrument")
     out["instrument"] = None if inst is None else Instrument.from_dict(inst)
@@ -272,8 +268,6 @@ def restore_fields(meta: dict[str, Any]) -> dict[str, Any]:
         m = get_model(desc["model"])
         model = m if m.describe() == desc else None
         if model is None and desc.get("model") == "standard":
-            from rotmod.profiles import StandardModel  # the package, not its base module
-
             model = StandardModel(desc.get("transmission", 0.0))
     out["model"] = model
     out["energy"] = meta.get("energy")
@@ -332,7 +326,7 @@ _ENCODE: dict[str, Callable[[Any], Any]] = {
     "grid": lambda v: v.to_dict(),
     "time_bins": lambda v: TimeBinning.coerce(v).to_dict(),
     "model": lambda v: get_model(v).describe(),
-    "energy": _in("keV"),
+    "energy": lambda v: as_energy_scalar(v, "energy"),
     "distance": _distance,
 }
 

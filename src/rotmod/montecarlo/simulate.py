@@ -19,6 +19,7 @@ from rotmod._validate import (
     as_energy_scalar,
     as_scalar,
 )
+from rotmod.conventions import source_direction
 from rotmod.energy import EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, check_gti
@@ -336,8 +337,7 @@ def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.nda
     n_det = len(det)
     S = inst.source_positions(th, ph, dist)
     finite = np.isfinite(dist)
-    st = np.sin(th)
-    dirs = np.stack([st * np.cos(ph), st * np.sin(ph), np.cos(th)], axis=1)
+    dirs = source_direction(th, ph)
     src = np.where(finite[:, None], S, dirs)
     gen = np.empty((n_det, n_n, 3))
     wmax = np.ones((n_det, n_n))

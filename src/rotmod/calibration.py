@@ -39,7 +39,7 @@ from rotmod.binning import TimeBinning
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument, disc_flux
 from rotmod.montecarlo import seed_sequence, simulate_profiles
-from rotmod.profiles import get_model
+from rotmod.profiles import DEFAULT_MODEL, get_model
 
 __all__ = [
     "PARAMETERS",
@@ -317,7 +317,7 @@ def fit_calibration(
     *,
     parameters: tuple[str, ...] = ("axis_offset_x", "axis_offset_y", "tilt_x", "tilt_y"),
     start: dict[str, Any] | None = None,
-    model: Any = "exact",
+    model: Any = DEFAULT_MODEL,
     max_iter: int = 30,
     tol: float = 1e-3,
 ) -> CalibrationResult:
@@ -337,7 +337,8 @@ def fit_calibration(
     start : dict, optional
         Starting values (cm, deg; Quantities accepted); default the instrument's.
     model : str or ProfileModel
-        Profile model (``"exact"``: the only one that describes the instrument as built).
+        Profile model (default :data:`~rotmod.profiles.DEFAULT_MODEL`, ``"exact"``: the only
+        one that describes the instrument as built).
     max_iter : int
         Most Fisher-scoring iterations.
     tol : float

@@ -41,7 +41,8 @@ import numpy as np
 
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import Instrument
-from rotmod.io.atomic import atomic_dir, atomic_path, write_text
+from rotmod.io.atomic import atomic_dir, atomic_path, remove_stale_dirs, write_text
+from rotmod.io.figures import save_figure
 from rotmod.io.images import write_image
 from rotmod.materials import PAPER_SIGMA_662
 from rotmod.montecarlo import simulate_profiles
@@ -170,11 +171,13 @@ def _write_json(path: Path, obj: Any) -> None:
 
 
 def _savefig(fig: Any, path: Path, dpi: int = 110) -> str:
+    """Save ``fig`` (:func:`rotmod.io.figures.save_figure`) and close it; the file's name."""
     import matplotlib.pyplot as plt
 
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix[1:])
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
     return path.name
 
 
@@ -489,8 +492,7 @@ def reproduce(
             )
     prov = provenance(seed)
     _write_json(marker, {"size": size, "seed": seed, "provenance": prov})
-    for stale in out.glob(".*.tmp-*"):
-        shutil.rmtree(stale, ignore_errors=True)
+    remove_stale_dirs(out)
     t0 = time.perf_counter()
     results: dict[str, dict[str, Any]] = {}
     fns: dict[str, Callable[[Path], dict[str, Any]]] = {

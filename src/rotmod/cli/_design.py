@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from rotmod import design
 from rotmod.cli._common import (
     UserError,
     add_instrument,
@@ -25,7 +26,6 @@ from rotmod.cli._common import (
     use_agg,
     write_table,
 )
-from rotmod.design import scan_designs
 from rotmod.plotting.design import plot_design_tradeoff
 
 
@@ -104,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
     update, close = (tqdm_progress(n, "designs", "design") if progress_wanted(args)
                      else (None, lambda: None))
     try:
-        scan = scan_designs(
+        # Looked up on the module at each call (tests replace it to provoke an unexpected error).
+        scan = design.scan_designs(
             detector_diameter=c, height=L, slat_width=a, slat_gap=b, thickness=h,
             material=inst.mask.material, energies=e, fov=args.fov, mu=inst.mask.mu,
             n_theta=args.rings, n_phi=args.azimuths, n_angles=args.angles, progress=update,

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import traceback
 from collections.abc import Sequence
 
 from rotmod import __version__
@@ -103,7 +104,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # a bug: show it
         if args.debug:
             raise
-        import traceback
 
         traceback.print_exc()
         print(f"rotmod: unexpected error ({type(exc).__name__}); this is a bug, please "

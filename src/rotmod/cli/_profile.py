@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 import numpy as np
+from astropy.table import Table
 
 from rotmod.cli._common import (
     UserError,
@@ -62,8 +63,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from astropy.table import Table
-
     out = check_output(args.output, args.overwrite)
     plot = check_plot(args.plot, args.overwrite)
     if args.angles < 1:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+import numpy as np
+
 from rotmod.cli._common import (
     UserError,
     add_output,
@@ -64,8 +66,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
     src = check_input(args.folded, "folded profiles")
     rsp = check_input(args.response, "response")
     out = check_output(args.output, args.overwrite, inputs=(src, rsp))

@@ -164,7 +164,7 @@ def write_report(
     -------
     Path
     """
-    import jinja2
+    import jinja2  # only the report's page needs it
 
     out = Path(output)
     res: dict[str, Any] = {}

@@ -21,7 +21,6 @@ from rotmod._validate import as_distance, as_energy_scalar, as_float_dtype
 from rotmod.binning import TimeBinning
 from rotmod.errors import InstrumentMismatchError, ParameterError
 from rotmod.geometry import Instrument
-from rotmod.profiles import StandardModel
 from rotmod.profiles.base import DEFAULT_MODEL, MODELS, ProfileModel, get_model
 from rotmod.sky.geometry import SkyGeometry, grid_from_dict
 
@@ -262,18 +261,28 @@ def restore_fields(meta: dict[str, Any]) -> dict[str, Any]:
     out["grid"] = None if meta.get("grid") is None else grid_from_dict(meta["grid"])
     tb = meta.get("time_bins")
     out["time_bins"] = None if tb is None else TimeBinning.from_dict(tb)
-    model = None
     desc = meta.get("model")
-    if desc is not None and desc.get("model") in MODELS:
-        m = get_model(desc["model"])
-        model = m if m.describe() == desc else None
-        if model is None and desc.get("model") == "standard":
-            model = StandardModel(desc.get("transmission", 0.0))
-    out["model"] = model
+    out["model"] = None if desc is None else _restore_model(desc)
     out["energy"] = meta.get("energy")
     out["distance"] = meta.get("distance")
     out["dtype"] = np.dtype(meta.get("dtype", "float32"))
     return out
+
+
+def _restore_model(desc: dict[str, Any]) -> ProfileModel | None:
+    """The registered model that :meth:`ProfileModel.describe` described as ``desc``: the
+    registry's entry, given the described parameters when they are not its defaults; ``None``
+    for a name or parameters this rotmod does not know."""
+    name = desc.get("model")
+    if name not in MODELS:
+        return None
+    model = get_model(name)
+    if model.describe() != desc:
+        try:
+            model = MODELS.get(name)(**{k: v for k, v in desc.items() if k != "model"})
+        except TypeError:  # parameters this model does not take
+            return None
+    return model if model.describe() == desc else None
 
 
 # ------------------------------------------------------------------------------ comparison

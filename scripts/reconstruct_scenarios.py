@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from rotmod.io.atomic import write_text
 from rotmod.paper.scenarios import SCENARIOS, make_scenario
-from rotmod.reconstruction import reconstruct
+from rotmod.reconstruction import get_algorithm, reconstruct
 from rotmod.reconstruction.metrics import evaluate, measure
 
 log = logging.getLogger("reconstruct_scenarios")
@@ -58,7 +59,7 @@ def main() -> None:
         for model in MODELS[name]:
             resp, t_resp, _ = measure(sc.response, model)
             for method, kw in METHODS:
-                if sc.stopping is not None and method != "backprojection":
+                if sc.stopping is not None and get_algorithm(method).iterative:
                     kw = {**kw, "stopping": sc.stopping}
                 res, dt, mem = measure(
                     reconstruct, resp, sc.folded, method, seed=3, **sc.reconstruct_kwargs, **kw
@@ -94,7 +95,7 @@ def main() -> None:
             f"{m['flux_ratio']:.2f} | {m['chi2_dof']:.3f} | {m['n_iter']:.0f} | {dt:.2f} | "
             f"{mem:.1f} |"
         )
-    (out / "recon_metrics.md").write_text("\n".join(info) + "\n\n" + "\n".join(lines) + "\n")
+    write_text(out / "recon_metrics.md", "\n".join(info) + "\n\n" + "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

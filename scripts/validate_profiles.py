@@ -19,6 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
+from rotmod.io.atomic import write_text
 from rotmod.paper.selection import VALIDATION_MODELS
 from rotmod.paper.validation import SCENARIOS, plot_scenario, run_scenario
 
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         + "\n\nLargest |model - MC| (fraction of the unobstructed flux):\n\n" + "\n".join(devs)
         + "\n\nSkipped:\n\n" + "\n".join(notes) + "\n"
     )
-    (args.out / "validation_table.md").write_text(text)
+    write_text(args.out / "validation_table.md", text)
     return 0
 
 

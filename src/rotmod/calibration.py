@@ -34,10 +34,12 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_array, as_int, as_scalar
+from rotmod._validate import as_angle_scalar, as_array, as_energy_scalar, as_int, as_scalar
 from rotmod.binning import TimeBinning
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument, disc_flux
+from rotmod.montecarlo import seed_sequence, simulate_profiles
+from rotmod.profiles import DEFAULT_MODEL, get_model
 
 __all__ = [
     "PARAMETERS",
@@ -118,8 +120,7 @@ class LabMeasurement:
         if not d > 0:
             raise ParameterError(f"distance must be > 0 cm (inf: at infinity), got {d:g} cm")
         object.__setattr__(self, "distance", d)
-        object.__setattr__(self, "energy", as_scalar(self.energy, "energy", u.keV, lo=0.0,
-                                                     lo_open=True))
+        object.__setattr__(self, "energy", as_energy_scalar(self.energy, "energy"))
         k = as_array(self.counts, "counts", lo=0.0, ndim=2)
         if np.any(k != np.round(k)):
             raise ParameterError("counts must be whole numbers of events")
@@ -229,8 +230,6 @@ def relative_flux(instrument: Instrument, theta: float, phi: float, distance: fl
 def _profiles(instrument: Instrument, m: LabMeasurement, distance_offset: float,
               model: Any) -> np.ndarray:
     """``omega_d Pbar[d, t]`` of one measurement (bin averages over the sub-angles)."""
-    from rotmod.profiles import get_model
-
     tb = m.time_bins
     xi = tb.sub_angles().ravel()  # rad, sub-sample k of every bin, then the next k
     D = m.distance + distance_offset if np.isfinite(m.distance) else None
@@ -283,8 +282,6 @@ def simulate_measurement(
     -------
     LabMeasurement
     """
-    from rotmod.montecarlo import seed_sequence, simulate_profiles
-
     n = as_scalar(photons, "photons", lo=0.0, lo_open=True)
     tb = time_bins if isinstance(time_bins, TimeBinning) else bins(time_bins)
     det = instrument.detectors
@@ -320,7 +317,7 @@ def fit_calibration(
     *,
     parameters: tuple[str, ...] = ("axis_offset_x", "axis_offset_y", "tilt_x", "tilt_y"),
     start: dict[str, Any] | None = None,
-    model: Any = "exact",
+    model: Any = DEFAULT_MODEL,
     max_iter: int = 30,
     tol: float = 1e-3,
 ) -> CalibrationResult:
@@ -340,7 +337,8 @@ def fit_calibration(
     start : dict, optional
         Starting values (cm, deg; Quantities accepted); default the instrument's.
     model : str or ProfileModel
-        Profile model (``"exact"``: the only one that describes the instrument as built).
+        Profile model (default :data:`~rotmod.profiles.DEFAULT_MODEL`, ``"exact"``: the only
+        one that describes the instrument as built).
     max_iter : int
         Most Fisher-scoring iterations.
     tol : float

@@ -61,10 +61,7 @@ import numpy as np
 from rotmod.errors import ParameterError
 
 __all__ = [
-    "ANGLE_UNIT",
     "ENERGY_UNIT",
-    "LENGTH_UNIT",
-    "TIME_UNIT",
     "format_quantity",
     "mask_coordinate",
     "parse_quantity",
@@ -73,10 +70,8 @@ __all__ = [
     "source_direction",
 ]
 
-LENGTH_UNIT = u.cm
-ANGLE_UNIT = u.rad
+#: The unit of every public energy given as a plain number (:func:`rotmod._validate.as_energy`).
 ENERGY_UNIT = u.keV
-TIME_UNIT = u.s
 
 
 def source_direction(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:

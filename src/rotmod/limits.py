@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import os
 
+import astropy.units as u
+
 from rotmod.errors import RotmodError
 
 __all__ = ["MemoryBudgetError", "check_memory", "format_bytes", "memory_budget"]
@@ -54,8 +56,6 @@ def memory_budget() -> int:
     text = os.environ.get("ROTMOD_MEMORY_BUDGET")
     if not text:
         return int(DEFAULT_FRACTION * _physical_memory())
-    import astropy.units as u
-
     try:
         value = float(text)
         nbytes = value

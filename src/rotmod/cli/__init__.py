@@ -20,8 +20,10 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import traceback
 from collections.abc import Sequence
 
+from rotmod import __version__
 from rotmod.cli import (
     _design,
     _fold,
@@ -32,6 +34,7 @@ from rotmod.cli import (
     _simulate,
 )
 from rotmod.cli._common import UserError
+from rotmod.errors import RotmodError
 
 __all__ = ["build_parser", "main"]
 
@@ -45,8 +48,6 @@ _SUBCOMMANDS = (_profile, _simulate, _fold, _response, _reconstruct, _design, _r
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``rotmod`` argument parser with every subcommand."""
-    from rotmod import __version__
-
     parser = argparse.ArgumentParser(
         prog="rotmod",
         description="Rotating-modulator (RM) gamma-ray imaging: profiles, Monte Carlo, "
@@ -78,8 +79,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     int
         The exit code (0 ok, 2 usage or user error, 1 unexpected error, 130 interrupted).
     """
-    from rotmod.errors import RotmodError
-
     parser = build_parser()
     try:
         args = parser.parse_args(list(argv) if argv is not None else None)
@@ -105,7 +104,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # a bug: show it
         if args.debug:
             raise
-        import traceback
 
         traceback.print_exc()
         print(f"rotmod: unexpected error ({type(exc).__name__}); this is a bug, please "

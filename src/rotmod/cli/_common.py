@@ -3,16 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import astropy.units as u
 import numpy as np
 
 from rotmod.errors import RotmodError
+from rotmod.io import figures as io_figures
+from rotmod.io import tables as io_tables
 from rotmod.io.atomic import check_overwrite
+from rotmod.io.config import load_instrument_config
 from rotmod.registry import Registry
 
 if TYPE_CHECKING:
@@ -40,8 +45,6 @@ def to_number(text: str, unit: str) -> float:
     argparse.ArgumentTypeError
         Not a number, a unit of the wrong kind, or not finite.
     """
-    import astropy.units as u
-
     s = text.strip()
     try:
         value = float(s)
@@ -93,8 +96,6 @@ def add_output(p: argparse.ArgumentParser, *, required: bool = True, help: str =
 
 
 def load_config(args: argparse.Namespace) -> InstrumentConfig:
-    from rotmod.config import load_instrument_config
-
     return load_instrument_config(args.instrument)
 
 
@@ -108,11 +109,9 @@ def energy_of(args: argparse.Namespace, cfg: Any) -> float:
 
 def iteration_bar(enabled: bool, desc: str) -> Any:
     """A tqdm bar counting iterations of unknown total (a null context when disabled)."""
-    import contextlib
-
     if not enabled:
         return contextlib.nullcontext(None)
-    from tqdm.auto import tqdm
+    from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
 
     return tqdm(desc=desc, unit="it")
 
@@ -253,20 +252,16 @@ def write_table(table: Any, path: Path) -> Path:
 
     The output was checked (:func:`check_output`) before the work that made the table.
     """
-    from rotmod.io.tables import write_table as write  # astropy.table: the CLI starts fast
-
-    return write(table, path, overwrite=True)
+    return io_tables.write_table(table, path, overwrite=True)
 
 
 def save_figure(fig: Any, path: Path, dpi: int = 120) -> Path:
     """Save and close a matplotlib figure atomically (Agg backend)."""
     import matplotlib.pyplot as plt
 
-    from rotmod.io.figures import save_figure as save  # the CLI starts fast
-
     try:
         # The output was checked (check_plot) before the work that made the figure.
-        return save(fig, path, dpi=dpi, overwrite=True)
+        return io_figures.save_figure(fig, path, dpi=dpi, overwrite=True)
     finally:
         plt.close(fig)
 
@@ -280,7 +275,7 @@ def use_agg() -> None:
 
 def tqdm_progress(total: int, desc: str, unit: str = "it") -> tuple[Callable, Callable]:
     """A ``(update(done, total), close())`` pair drawing a tqdm bar on stderr."""
-    from tqdm.auto import tqdm
+    from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
 
     bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
 

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from rotmod import design
 from rotmod.cli._common import (
     UserError,
     add_instrument,
@@ -25,6 +26,7 @@ from rotmod.cli._common import (
     use_agg,
     write_table,
 )
+from rotmod.plotting.design import plot_design_tradeoff
 
 
 def _weights(text: str) -> tuple[float, float, float]:
@@ -86,8 +88,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rotmod.design import scan_designs
-
     out = check_output(args.output, args.overwrite)
     plot = check_plot(args.plot, args.overwrite)
     cfg = load_config(args)
@@ -104,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
     update, close = (tqdm_progress(n, "designs", "design") if progress_wanted(args)
                      else (None, lambda: None))
     try:
-        scan = scan_designs(
+        # Looked up on the module at each call (tests replace it to provoke an unexpected error).
+        scan = design.scan_designs(
             detector_diameter=c, height=L, slat_width=a, slat_gap=b, thickness=h,
             material=inst.mask.material, energies=e, fov=args.fov, mu=inst.mask.mu,
             n_theta=args.rings, n_phi=args.azimuths, n_angles=args.angles, progress=update,
@@ -135,7 +136,6 @@ def run(args: argparse.Namespace) -> int:
     say(f"rotmod: wrote {out}")
     if plot is not None:
         use_agg()
-        from rotmod.plotting.design import plot_design_tradeoff
 
         ax = plot_design_tradeoff(scan, weights=args.weights, best=best)
         save_figure(ax.figure, plot)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.cli._common import (
     UserError,
     add_output,
@@ -17,6 +18,8 @@ from rotmod.cli._common import (
     to_number,
     use_agg,
 )
+from rotmod.events import fold
+from rotmod.io import read_events, write_folded
 
 
 def register(sub: Any) -> None:
@@ -39,10 +42,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
-    from rotmod.binning import EnergyBand, TimeBinning
-    from rotmod.events import fold
-    from rotmod.io import read_events, write_folded
 
     src = check_input(args.events, "event list")
     out = check_output(args.output, args.overwrite, inputs=(src,))

@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 import numpy as np
+from astropy.table import Table
 
 from rotmod.cli._common import (
     UserError,
@@ -25,6 +26,9 @@ from rotmod.cli._common import (
     write_table,
 )
 from rotmod.errors import ModelValidityError
+from rotmod.limits import check_memory
+from rotmod.montecarlo import simulate_profiles
+from rotmod.plotting.profiles import plot_profiles
 from rotmod.profiles import DEFAULT_COMPARISON, DEFAULT_MODEL, MODELS, get_model
 
 
@@ -59,8 +63,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from astropy.table import Table
-
     out = check_output(args.output, args.overwrite)
     plot = check_plot(args.plot, args.overwrite)
     if args.angles < 1:
@@ -76,7 +78,6 @@ def run(args: argparse.Namespace) -> int:
         dets = [args.detector]
     src = np.array(args.source, dtype=float)
     theta, phi = src[:, 0], src[:, 1]  # deg, the library's meaning of a plain angle
-    from rotmod.limits import check_memory
 
     # Every model's profiles plus the table's rows (~10 columns) for each of them.
     n_models = len(args.model or DEFAULT_COMPARISON) + (args.mc_photons > 0)
@@ -100,8 +101,6 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"no model applies to this geometry; ask for --model {DEFAULT_MODEL}")
     mc = None
     if args.mc_photons > 0:
-        from rotmod.montecarlo import simulate_profiles
-
         mc = simulate_profiles(inst, theta, phi, xi, energy=energy, n_photons=args.mc_photons,
                                seed=args.seed)
         profiles_mc = {"montecarlo": mc.fraction}
@@ -131,8 +130,6 @@ def run(args: argparse.Namespace) -> int:
     if plot is not None:
         use_agg()
         import matplotlib.pyplot as plt
-
-        from rotmod.plotting.profiles import plot_profiles
 
         d = dets[0]
         fig, axes = plt.subplots(src.shape[0], 1, figsize=(7, 2.6 * src.shape[0]),

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+import numpy as np
+
 from rotmod.cli._common import (
     UserError,
     add_output,
@@ -21,8 +23,12 @@ from rotmod.cli._common import (
     source_arg,
     use_agg,
 )
+from rotmod.io import read_folded
+from rotmod.io.images import write_image
+from rotmod.plotting.images import plot_image
 from rotmod.reconstruction import ALGORITHMS, reconstruct
 from rotmod.reconstruction.api import DEFAULT_METHOD
+from rotmod.response import StoredResponse, open_response
 
 
 def register(sub: Any) -> None:
@@ -60,12 +66,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from rotmod.io import read_folded
-    from rotmod.io.images import write_image
-    from rotmod.response import StoredResponse, open_response
-
     src = check_input(args.folded, "folded profiles")
     rsp = check_input(args.response, "response")
     out = check_output(args.output, args.overwrite, inputs=(src, rsp))
@@ -104,7 +104,6 @@ def run(args: argparse.Namespace) -> int:
     say(f"rotmod: wrote {out}")
     if plot is not None:
         use_agg()
-        from rotmod.plotting.images import plot_image
 
         marks = None
         if args.mark:

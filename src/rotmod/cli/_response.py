@@ -27,6 +27,8 @@ from rotmod.cli._common import (
     say,
 )
 from rotmod.profiles import DEFAULT_MODEL, MODELS
+from rotmod.response import RadonResponse, TimeBinning, save_response, write_response
+from rotmod.sky import SkyGrid
 
 
 def register(sub: Any) -> None:
@@ -87,9 +89,6 @@ def parse_pair(text: str, option: str = "--center", names: str = "X,Y") -> tuple
 
 
 def run(args: argparse.Namespace) -> int:
-    from rotmod.response import RadonResponse, TimeBinning, save_response, write_response
-    from rotmod.sky import SkyGrid
-
     args.model = registered(MODELS, args.model or DEFAULT_MODEL, "--model")
     out = check_output(args.output, args.overwrite)
     if args.operator == "radon" and args.model != "exact":

@@ -22,6 +22,9 @@ from rotmod.cli._common import (
     say,
     source_arg,
 )
+from rotmod.io import write_events
+from rotmod.montecarlo import simulate_observation
+from rotmod.sky import PointSources
 
 
 def register(sub: Any) -> None:
@@ -50,10 +53,6 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rotmod.io import write_events
-    from rotmod.montecarlo import simulate_observation
-    from rotmod.sky import PointSources
-
     out = check_output(args.output, args.overwrite)
     if not np.isfinite(args.exposure) or args.exposure <= 0:
         raise UserError(f"--exposure: must be > 0 s, got {args.exposure:g} s")

@@ -9,6 +9,7 @@ import astropy.units as u
 import numpy as np
 
 from rotmod._validate import as_array, as_scalar
+from rotmod.conventions import source_direction
 from rotmod.errors import ParameterError
 from rotmod.geometry.detectors import DetectorArray
 from rotmod.geometry.mask import Mask
@@ -99,9 +100,8 @@ class Instrument:
         th = np.asarray(theta, dtype=float)
         ph = np.asarray(phi, dtype=float)
         D = np.broadcast_to(np.asarray(distance, dtype=float), th.shape)
-        st = np.sin(th)
-        with np.errstate(invalid="ignore"):
-            S = D[:, None] * np.stack([st * np.cos(ph), st * np.sin(ph), np.cos(th)], axis=1)
+        with np.errstate(invalid="ignore"):  # inf * 0 where a source at infinity lies on an axis
+            S = D[:, None] * source_direction(th, ph)
         S[~np.isfinite(D)] = np.inf
         fin = np.isfinite(D)
         if fin.any():

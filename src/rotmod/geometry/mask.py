@@ -8,7 +8,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_array, as_scalar
+from rotmod._validate import as_angle_scalar, as_array, as_energy_scalar, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.materials import Material
 
@@ -307,7 +307,7 @@ class Mask:
         """
         # A given energy is checked even when the attenuation is fixed: a NaN or negative
         # energy is a mistake whatever the mask.
-        e = None if energy is None else as_scalar(energy, "energy", u.keV, lo=0.0, lo_open=True)
+        e = None if energy is None else as_energy_scalar(energy, "energy")
         if self.mu is not None:
             return float(self.mu)
         return self.material.coefficient(e, "the mask's", hint=", or set mask.mu")

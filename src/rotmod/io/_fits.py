@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import warnings
 from pathlib import Path
+from urllib.parse import quote
 
 from astropy.io import fits
 
@@ -26,8 +27,6 @@ def header_text(value: str) -> str:
     percent-encoded (``r%C3%A9.zarr``, :func:`urllib.parse.unquote` gives it back).  Long
     values are left whole: astropy writes them with CONTINUE cards.
     """
-    from urllib.parse import quote
-
     if all(" " <= ch <= "~" for ch in value):
         return value
     return quote(value, safe="".join(chr(c) for c in range(32, 127) if chr(c) != "%"))

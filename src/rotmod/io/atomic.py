@@ -19,7 +19,14 @@ from pathlib import Path
 
 from rotmod.errors import ParameterError
 
-__all__ = ["atomic_dir", "atomic_path", "check_overwrite", "current_umask", "write_text"]
+__all__ = [
+    "atomic_dir",
+    "atomic_path",
+    "check_overwrite",
+    "current_umask",
+    "remove_stale_dirs",
+    "write_text",
+]
 
 
 def check_overwrite(path: str | os.PathLike, overwrite: bool, *, parameter: str = "path",
@@ -81,6 +88,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         raise
 
 
+#: What marks the temporary folders of :func:`atomic_dir` (``.<name>.tmp-<random>``).
+_DIR_TAG = ".tmp-"
+
+
 @contextlib.contextmanager
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; on success it replaces ``path``.
@@ -88,7 +99,7 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     An existing ``path`` is removed only once the new folder is complete.
     """
     p = Path(path)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.tmp-", dir=p.parent or "."))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}{_DIR_TAG}", dir=p.parent or "."))
     try:
         yield tmp
         os.chmod(tmp, _default_mode(True))
@@ -98,6 +109,13 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def remove_stale_dirs(folder: str | os.PathLike) -> None:
+    """Remove the temporary folders of :func:`atomic_dir` left in ``folder`` by a process that
+    was killed before it could clean up (an exception cleans up by itself)."""
+    for stale in Path(folder).glob(f".*{_DIR_TAG}*"):
+        shutil.rmtree(stale, ignore_errors=True)
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:

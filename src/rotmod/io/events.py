@@ -43,6 +43,8 @@ from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.io._fits import header_text, open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite
 from rotmod.materials import Material
+from rotmod.sky import Attitude
+from rotmod.sky.sources import PointSources
 
 __all__ = ["read_events", "read_folded", "write_events", "write_folded"]
 
@@ -441,8 +443,6 @@ def read_events(path: str | os.PathLike) -> EventList:
     RotmodError
         Missing file, not FITS, or missing extensions, columns or keywords.
     """
-    from rotmod.sky.sources import PointSources
-
     with _open(path) as hdul:
         ev = _ext(hdul, "EVENTS", path)
         h = ev.header
@@ -452,8 +452,6 @@ def read_events(path: str | os.PathLike) -> EventList:
         gti = _read_gti(hdul, path)
         attitude = None
         if "RA_PNT" in h and "DEC_PNT" in h:
-            from rotmod.sky import Attitude
-
             attitude = Attitude(
                 _key_in(h, "RA_PNT", 0.0, u.deg, path), _key_in(h, "DEC_PNT", 0.0, u.deg, path),
                 _key_in(h, "ROLL_PNT", 0.0, u.deg, path),

@@ -12,6 +12,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from astropy.io import fits
+from astropy.table import Table
 
 from rotmod.errors import ParameterError
 from rotmod.io._fits import header_text, open_verified
@@ -106,9 +108,6 @@ def write_image(
     image if given, or an empty primary and a pixel table), then ``HISTORY`` (binary table
     of the fit statistic per iteration; only for results).
     """
-    from astropy.io import fits
-    from astropy.table import Table
-
     p = check_overwrite(path, overwrite)
     img = image if image is not None else (None if result is None else result.image)
     if img is None:

@@ -29,7 +29,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_array, as_scalar
+from rotmod._validate import as_energy, as_energy_scalar, as_scalar
 from rotmod.errors import MaterialError, ParameterError
 
 __all__ = ["DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "Material", "mass_attenuation"]
@@ -138,7 +138,7 @@ def mass_attenuation(formula: str, energy: Any) -> np.ndarray:
         Unknown material, or an energy outside 1 keV to 100 GeV.
     """
     lo, hi = DATABASE_RANGE_KEV
-    e = as_array(energy, "energy", u.keV, lo=0.0, lo_open=True)
+    e = as_energy(energy, "energy")
     if np.any((e < lo) | (e > hi)):
         bad = e[(e < lo) | (e > hi)].ravel()[0]
         raise MaterialError(
@@ -213,7 +213,7 @@ class Material:
     def mass_attenuation_at(self, energy: Any) -> np.ndarray:
         """Mass attenuation coefficient (cm^2/g) at ``energy`` (keV)."""
         if self.mass_attenuation is not None:
-            e = as_array(energy, "energy", u.keV, lo=0.0, lo_open=True)
+            e = as_energy(energy, "energy")
             return np.full(e.shape, self.mass_attenuation)
         return mass_attenuation(self.name, energy)
 
@@ -244,5 +244,4 @@ class Material:
                 f"energy is required: {whose} attenuation comes from the material database "
                 f"({self.name}){hint}"
             )
-        return float(self.linear_attenuation(as_scalar(energy, "energy", u.keV, lo=0.0,
-                                                       lo_open=True)))
+        return float(self.linear_attenuation(as_energy_scalar(energy, "energy")))

@@ -11,7 +11,16 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle, as_angle_scalar, as_array, as_distance, as_scalar
+from rotmod._validate import (
+    as_angle,
+    as_angle_scalar,
+    as_array,
+    as_distance,
+    as_energy_scalar,
+    as_scalar,
+)
+from rotmod.conventions import source_direction
+from rotmod.energy import EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, check_gti
 from rotmod.geometry import Instrument, disc_flux
@@ -53,7 +62,7 @@ def _progress_fn(progress: Progress, total: int, desc: str) -> tuple[Callable, C
     if progress is None or progress is False:
         return (lambda done, tot: None), (lambda: None)
     if progress is True:
-        from tqdm.auto import tqdm
+        from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
 
         bar = tqdm(total=total, desc=desc, unit="photon", unit_scale=True)
 
@@ -263,7 +272,7 @@ def simulate_profiles(
         xs = 0.5 * (edges[1:] + edges[:-1])
     n_photons = _check_count(n_photons, "n_photons", 1)
     chunk_size = _check_count(chunk_size, "chunk_size", 1)
-    e = None if energy is None else as_scalar(energy, "energy", u.keV, lo=0.0, lo_open=True)
+    e = None if energy is None else as_energy_scalar(energy, "energy")
     dist = as_distance(distance, th.size)
     if not isinstance(poisson, bool | np.bool_):
         raise ParameterError(f"poisson must be True or False, got {poisson!r}")
@@ -328,8 +337,7 @@ def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.nda
     n_det = len(det)
     S = inst.source_positions(th, ph, dist)
     finite = np.isfinite(dist)
-    st = np.sin(th)
-    dirs = np.stack([st * np.cos(ph), st * np.sin(ph), np.cos(th)], axis=1)
+    dirs = source_direction(th, ph)
     src = np.where(finite[:, None], S, dirs)
     gen = np.empty((n_det, n_n, 3))
     wmax = np.ones((n_det, n_n))
@@ -500,7 +508,7 @@ def simulate_observation(
             )
         e_bkg = float(uniq[0])
     else:
-        e_bkg = as_scalar(background_energy, "background_energy", u.keV, lo=0.0, lo_open=True)
+        e_bkg = as_energy_scalar(background_energy, "background_energy")
     chunk_size = _check_count(chunk_size, "chunk_size", 1)
     mu = _mu_for(inst, sources.energy)
     a, b, L, h, thin = _mask_params(inst)
@@ -578,8 +586,6 @@ def simulate_observation(
             sources.band[s, 0], sources.band[s, 1], np.random.default_rng(root.spawn(1)[0])
         ).astype(np.float32)
     if resolution is not None:
-        from rotmod.energy import EnergyResolution
-
         if not isinstance(resolution, EnergyResolution):
             raise ParameterError(f"resolution must be an EnergyResolution, got {resolution!r}")
         # Its own stream (spawned after the transport's): the same seed gives the same

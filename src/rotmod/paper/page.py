@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from rotmod.io.atomic import write_text
+from rotmod.paper.provenance import provenance as make_provenance
 from rotmod.paper.selection import VALIDATION_MODELS
 
 __all__ = ["fmt_time", "write_report"]
@@ -163,9 +164,7 @@ def write_report(
     -------
     Path
     """
-    import jinja2
-
-    from rotmod.paper.provenance import provenance as make_provenance
+    import jinja2  # only the report's page needs it
 
     out = Path(output)
     res: dict[str, Any] = {}

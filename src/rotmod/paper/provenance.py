@@ -14,6 +14,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import rotmod
+
 __all__ = ["git_commit", "provenance"]
 
 _LIBRARIES = ("numpy", "scipy", "numba", "astropy", "matplotlib", "zarr", "dask", "fisx")
@@ -46,8 +48,6 @@ def _version(name: str) -> str | None:
 
 def provenance(seed: int | None = None) -> dict[str, Any]:
     """A JSON-ready record of the code, libraries, machine and seed of a run."""
-    import rotmod
-
     return {
         "rotmod": rotmod.__version__,
         "git_commit": git_commit(),

@@ -37,11 +37,16 @@ from pathlib import Path
 from typing import Any
 
 import astropy.units as u
+import numba
 import numpy as np
 
-from rotmod.errors import ParameterError
-from rotmod.io.atomic import atomic_dir, atomic_path, write_text
+from rotmod.errors import ModelValidityError, ParameterError
+from rotmod.geometry import Instrument
+from rotmod.io.atomic import atomic_dir, atomic_path, remove_stale_dirs, write_text
+from rotmod.io.figures import save_figure
+from rotmod.io.images import write_image
 from rotmod.materials import PAPER_SIGMA_662
+from rotmod.montecarlo import simulate_profiles
 from rotmod.paper import scenarios, validation
 from rotmod.paper.claims import (
     IMAGE_CLAIMS,
@@ -55,9 +60,14 @@ from rotmod.paper.claims import (
 from rotmod.paper.page import write_report
 from rotmod.paper.provenance import provenance
 from rotmod.paper.selection import IMAGE_PAIR, REFERENCE_MODEL, SPEED_MODELS, check_registered
+from rotmod.plotting.images import plot_comparison, plot_image
+from rotmod.plotting.profiles import plot_profiles
 from rotmod.profiles import DEFAULT_COMPARISON, MODELS, get_model
 from rotmod.reconstruction import ALGORITHMS, get_algorithm, reconstruct
+from rotmod.reconstruction.metrics import evaluate
 from rotmod.registry import Registry
+from rotmod.response import TimeBinning, build_response
+from rotmod.sky import SkyGrid
 
 __all__ = ["SIZES", "STEPS", "ReproduceResult", "reproduce"]
 
@@ -162,11 +172,13 @@ def _write_json(path: Path, obj: Any) -> None:
 
 
 def _savefig(fig: Any, path: Path, dpi: int = 110) -> str:
+    """Save ``fig`` (:func:`rotmod.io.figures.save_figure`) and close it; the file's name."""
     import matplotlib.pyplot as plt
 
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=path.suffix[1:])
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)
     return path.name
 
 
@@ -192,7 +204,7 @@ def _run_step(
 def _progress(total: int, enabled: bool) -> Any:
     if not enabled:
         return contextlib.nullcontext(None)
-    from tqdm.auto import tqdm
+    from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
 
     return tqdm(total=total, desc="reproduce", unit="step")
 
@@ -244,12 +256,6 @@ def _median_time(fn: Callable[[], Any], repeats: int) -> float:
 
 
 def _step_speed(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) -> dict[str, Any]:
-    import numba
-
-    from rotmod.geometry import Instrument
-    from rotmod.montecarlo import simulate_profiles
-    from rotmod.sky import SkyGrid
-
     inst = Instrument.paper(sigma=PAPER_SIGMA_662)  # the paper's timing set-up (its sigma)
     grid = SkyGrid(cfg["speed_grid"], 14.0 / cfg["speed_grid"][0])
     theta, phi = grid.directions()
@@ -299,12 +305,6 @@ def _image_case(
     tmp: Path, name: str, cfg: dict[str, Any], seed: int, log: Callable, *, prefix: str,
 ) -> dict[str, Any]:
     import matplotlib.pyplot as plt
-
-    from rotmod.errors import ModelValidityError
-    from rotmod.io.images import write_image
-    from rotmod.plotting.images import plot_comparison
-    from rotmod.reconstruction.metrics import evaluate
-    from rotmod.response import TimeBinning, build_response
 
     log(f"[{prefix}] scenario {name}: Monte Carlo observation")
     sc = scenarios.make_scenario(name, cfg["image_size"], seed=seed)
@@ -381,8 +381,6 @@ def _step_prototype(tmp: Path, cfg: dict[str, Any], seed: int, log: Callable) ->
 def _step_summary(out: Path, tmp: Path, log: Callable) -> dict[str, Any]:
     import matplotlib.pyplot as plt
 
-    from rotmod.plotting.profiles import plot_profiles
-
     prof = None
     for name in ("thick20", "wide50", "zen48"):
         p = out / "profiles" / f"profile_{name}.npz"
@@ -416,9 +414,6 @@ def _step_summary(out: Path, tmp: Path, log: Callable) -> dict[str, Any]:
     else:
         ax0.text(0.5, 0.5, "profiles step not run", ha="center", transform=ax0.transAxes)
     if imgs is not None:
-        from rotmod.plotting.images import plot_image
-        from rotmod.sky import SkyGrid
-
         case, d, ks, ke = imgs
         grid = SkyGrid.from_dict(case["grid"])
         for j, k in enumerate((ks, ke)):
@@ -496,8 +491,7 @@ def reproduce(
             )
     prov = provenance(seed)
     _write_json(marker, {"size": size, "seed": seed, "provenance": prov})
-    for stale in out.glob(".*.tmp-*"):
-        shutil.rmtree(stale, ignore_errors=True)
+    remove_stale_dirs(out)
     t0 = time.perf_counter()
     results: dict[str, dict[str, Any]] = {}
     fns: dict[str, Callable[[Path], dict[str, Any]]] = {

@@ -29,6 +29,7 @@ from rotmod.materials import PAPER_SIGMA_662
 from rotmod.montecarlo import simulate_observation
 from rotmod.reconstruction import StoppingRule
 from rotmod.registry import Registry
+from rotmod.response import build_response
 from rotmod.sky import PointSources, SkyGrid
 
 if TYPE_CHECKING:
@@ -99,8 +100,6 @@ class Scenario:
 
     def response(self, model: str) -> MaterialisedResponse:
         """The response of this scenario with profile ``model`` (bin-averaged)."""
-        from rotmod.response import build_response
-
         return build_response(
             self.instrument, self.grid, self.time_bins, model=model, energy=self.energy,
             dtype=np.float64,

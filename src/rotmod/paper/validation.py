@@ -30,6 +30,7 @@ from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import PAPER_SIGMA_662, Material
 from rotmod.montecarlo import MCProfiles, simulate_profiles
 from rotmod.paper.selection import REFERENCE_MODEL, VALIDATION_MODELS
+from rotmod.plotting.profiles import plot_profiles
 from rotmod.profiles import DEFAULT_COMPARISON, MODELS, get_model
 from rotmod.registry import Registry
 
@@ -287,8 +288,6 @@ def plot_scenario(
     -------
     matplotlib.axes.Axes
     """
-    from rotmod.plotting.profiles import plot_profiles
-
     sc = result.scenario
     x0, y0 = sc.detectors[detector]
     shown = [m for m in models if m in result.profiles]

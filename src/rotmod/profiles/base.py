@@ -318,7 +318,7 @@ class ProfileModel(ABC):
 
 #: The profile models by name: each entry makes an instance (a class, or a class with bound
 #: parameters).  Filled by :func:`register_model` where each model is defined.
-MODELS: Registry[Callable[[], ProfileModel]] = Registry("model")
+MODELS: Registry[Callable[..., ProfileModel]] = Registry("model")
 
 #: The model every entry point uses when none is named (API, command line, report): the exact
 #: model is valid for every geometry, and within the advanced model's domain it costs about

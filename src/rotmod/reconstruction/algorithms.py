@@ -23,6 +23,7 @@ from rotmod.reconstruction.base import (
     _safe_div,
     register_algorithm,
 )
+from rotmod.reconstruction.sgp import SGP
 from rotmod.reconstruction.stats import chi2, deviance
 
 __all__ = ["MART", "MLEM", "NCAR", "OSEM", "SIRT", "BackProjection"]
@@ -394,8 +395,6 @@ class NCAR(SIRT):
                stopping: StoppingRule | None = None) -> Reconstructor:
         stopping = self.stopping if stopping is None else stopping
         if self.params["core"] == "sgp":
-            from rotmod.reconstruction.sgp import SGP
-
             solver: Reconstructor = SGP(self.response, data, stopping=stopping,
                                         grid=self.grid, callbacks=self.callbacks)
         else:
@@ -477,8 +476,6 @@ class NCAR(SIRT):
         reason, n_refit = "noise layers combined (no refit)", 0
         if self.params["refit"]:
             if self.params["core"] == "sgp":
-                from rotmod.reconstruction.sgp import SGP
-
                 ref: Reconstructor = SGP(self.response, self.data,
                                          stopping=self._layer_stopping(), grid=self.grid,
                                          callbacks=self.callbacks)

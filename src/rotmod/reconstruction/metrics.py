@@ -17,6 +17,7 @@ import astropy.units as u
 import numpy as np
 
 from rotmod._validate import as_angle
+from rotmod.conventions import source_direction
 from rotmod.errors import ParameterError
 
 __all__ = [
@@ -51,8 +52,6 @@ def angular_distance(grid: Any, x1: Any, y1: Any, x2: Any, y2: Any) -> np.ndarra
     """Great-circle angle (deg) between tangent-plane points ``(x1, y1)`` and ``(x2, y2)``."""
     t1, p1 = (v.to_value(u.rad) for v in grid.from_tangent(x1, y1))
     t2, p2 = (v.to_value(u.rad) for v in grid.from_tangent(x2, y2))
-    from rotmod.conventions import source_direction
-
     chord = np.linalg.norm(source_direction(t1, p1) - source_direction(t2, p2), axis=-1)
     # 2 arcsin(chord / 2) keeps full precision at small angles (arccos does not).
     return np.degrees(2 * np.arcsin(np.clip(chord / 2, 0.0, 1.0)))
@@ -63,7 +62,7 @@ def find_peaks(image: Any, *, min_value: float = 0.0) -> np.ndarray:
 
     Returns an ``(k, 2)`` integer array of ``(iy, ix)`` sorted by decreasing value.
     """
-    from scipy.ndimage import maximum_filter
+    from scipy.ndimage import maximum_filter  # scipy.ndimage: ~0.1 s, metrics only
 
     img = np.asarray(image, dtype=float)
     mx = maximum_filter(img, size=3, mode="constant", cval=-np.inf)
@@ -162,7 +161,7 @@ def peak_fwhm(image: Any, grid: Any, source: Any, *, radius: float) -> float:
     ``A``; the FWHM is ``2 sqrt(A / pi)`` (pixel area in tangent-plane deg^2).  NaN when the
     source region has no positive peak.
     """
-    from scipy.ndimage import label
+    from scipy.ndimage import label  # scipy.ndimage: ~0.1 s, metrics only
 
     img = _check_image(image, grid)
     (pk,) = source_peaks(img, grid, (np.atleast_1d(source[0]), np.atleast_1d(source[1])),
@@ -182,7 +181,7 @@ def two_source_dip(image: Any, grid: Any, sources: Any, *, radius: float,
     0.81); ~1 means merged.  The image is sampled bilinearly.  NaN if a peak is missing or
     the two sources share one peak pixel (unresolved: returns 1.0 in that case).
     """
-    from scipy.ndimage import map_coordinates
+    from scipy.ndimage import map_coordinates  # scipy.ndimage: ~0.1 s, metrics only
 
     img = _check_image(image, grid)
     pks = source_peaks(img, grid, sources, radius=radius)

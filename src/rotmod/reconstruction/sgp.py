@@ -34,7 +34,7 @@ from rotmod.reconstruction.base import (
     _safe_div,
     register_algorithm,
 )
-from rotmod.reconstruction.data import PoissonData
+from rotmod.reconstruction.data import ForwardModel, PoissonData
 from rotmod.reconstruction.stats import deviance_terms
 
 __all__ = ["SGP", "Sparse", "select_weight", "thin_counts"]
@@ -309,8 +309,6 @@ def select_weight(
         ``lambda_max``, ``iterations`` (SGP iterations spent) and ``half_start`` (the mean
         of the half-data estimates at ``lam``, to warm-start the fit of all the data).
     """
-    from rotmod.reconstruction.data import ForwardModel
-
     n_weights = as_int(n_weights, "n_weights", 2)
     n_folds = as_int(n_folds, "n_folds", 1, 2)
     inner_iter = as_int(inner_iter, "inner_iter", 1)

@@ -1,4 +1,7 @@
-"""The response as a linear operator from sky to folded count rates.
+"""The response as a linear operator from sky to folded count rates: the abstract
+:class:`ResponseOperator`, :class:`BlockwiseResponse` (products over blocks of ``P``) and
+:class:`MaterialisedResponse` (``P`` in memory, what :meth:`ResponseOperator.materialise`
+returns).
 
 ``O[d, t] = sum_n P[d, t, n] S[n]``: ``S[n]`` is the photon rate that sky pixel ``n`` would
 give on one (unobstructed) detector face, ``O[d, t]`` the expected count rate of detector
@@ -15,17 +18,18 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 import rotmod
+from rotmod.binning import TimeBinning
 from rotmod.errors import ParameterError
+from rotmod.geometry import Instrument
+from rotmod.profiles.base import ProfileModel, get_model
 from rotmod.response._plan import fold_half_turn, repeat_half_turn
 from rotmod.response.parallel import Block, block_grid, iter_blocks
 from rotmod.response.spec import ResponseSpec, describe
 
 if TYPE_CHECKING:
-    from scipy.sparse.linalg import LinearOperator
+    from scipy.sparse.linalg import LinearOperator  # ~0.15 s, for scipy's solvers only
 
-    from rotmod.response.materialised import MaterialisedResponse
-
-__all__ = ["BlockwiseResponse", "ResponseOperator"]
+__all__ = ["BlockwiseResponse", "MaterialisedResponse", "ResponseOperator"]
 
 
 class ResponseOperator(ABC):
@@ -53,7 +57,7 @@ class ResponseOperator(ABC):
     instrument: Any = None
     grid: Any = None
     time_bins: Any = None
-    model: Any = None
+    model: ProfileModel | None = None
     energy: float | None = None
     #: Distance of the sources (cm) for a lab field; ``None``: at infinity.
     distance: float | None = None
@@ -79,8 +83,7 @@ class ResponseOperator(ABC):
         return self.n_time
 
     def __repr__(self) -> str:
-        model = self.model.name if hasattr(self.model, "name") else self.model
-        extra = "" if model is None else f", model {model!r}"
+        extra = "" if self.model is None else f", model {self.model.name!r}"
         if self.energy is not None:
             extra += f", {self.energy:g} keV"
         if self.distance is not None:
@@ -154,7 +157,7 @@ class ResponseOperator(ABC):
         response are computed in float32 and then widened), which is what scipy's iterative
         solvers (``lsqr``, ``cg``, ...) expect.
         """
-        from scipy.sparse.linalg import LinearOperator
+        from scipy.sparse.linalg import LinearOperator  # ~0.15 s, for scipy's solvers only
 
         return LinearOperator(
             self.shape,
@@ -192,9 +195,6 @@ class ResponseOperator(ABC):
         MaterialisedResponse
             With this operator's :attr:`spec` (or, without one, its metadata attributes).
         """
-        # Function-local: MaterialisedResponse subclasses this class.
-        from rotmod.response.materialised import MaterialisedResponse
-
         out = np.empty((self.n_det, self.n_time, self.n_sky), dtype=self.dtype)
         for _, ((t0, t1), (n0, n1)), p in iter_blocks(
             self._source, self._materialise_blocks(), **self._run_options()
@@ -246,6 +246,140 @@ class ResponseOperator(ABC):
             # Only when finite, so that responses at infinity describe themselves as before.
             **({} if distance is None else {"distance": distance}),
         }
+
+
+class MaterialisedResponse(ResponseOperator):
+    """A response held in memory as ``P[d, t, n]``.
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (n_det, n_time, n_sky)
+        The response, float32 or float64 (other types are refused; the array is used as
+        is, without a copy, when it is C-contiguous).
+    spec : ResponseSpec, optional
+        What the matrix was computed for (its shape and dtype must be the spec's).
+    instrument, grid, time_bins, model, energy, distance : optional
+        Without a spec, what is known of it (metadata only; see
+        :meth:`ResponseOperator.metadata`).  ``model`` may be a registry name or instance;
+        ``distance`` (cm) of a lab field's sources.
+
+    Raises
+    ------
+    ParameterError
+        If ``matrix`` is not a 3-D float32/float64 array, or does not fit the metadata.
+
+    Notes
+    -----
+    With ``A = P.reshape(n_det * n_time, n_sky)``, ``forward(S) = (A S).reshape(n_det,
+    n_time)`` and ``adjoint(Y) = Y.ravel() A``: one BLAS matrix-vector product each, in the
+    matrix's dtype (inputs are cast to it).
+    """
+
+    def __init__(
+        self,
+        matrix: np.ndarray,
+        *,
+        spec: ResponseSpec | None = None,
+        instrument: Any = None,
+        grid: Any = None,
+        time_bins: Any = None,
+        model: str | ProfileModel | None = None,
+        energy: float | None = None,
+        distance: float | None = None,
+    ) -> None:
+        m = np.asarray(matrix)
+        if m.ndim != 3:
+            raise ParameterError(f"matrix must have shape (n_det, n_time, n_sky), got {m.shape}")
+        if m.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
+            raise ParameterError(f"matrix must be float32 or float64, got {m.dtype}")
+        self.matrix = np.ascontiguousarray(m)
+        if spec is not None:
+            loose = (instrument, grid, time_bins, model, energy, distance)
+            if any(v is not None for v in loose):
+                raise ParameterError("pass either spec or instrument, grid, time_bins, model, "
+                                     "energy, distance, not both")
+            if spec.shape != m.shape or spec.dtype != m.dtype:
+                raise ParameterError(f"matrix must have the spec's shape {spec.shape} and dtype "
+                                     f"{spec.dtype}, got {m.shape} {m.dtype}")
+            self._adopt(spec)
+            return
+        self.n_det, self.n_time, self.n_sky = (int(v) for v in m.shape)
+        self.dtype = m.dtype
+        _set_metadata(self, instrument, grid, time_bins, model, energy)
+        self.distance = None if distance is None else float(distance)
+
+    @property
+    def _flat(self) -> np.ndarray:
+        return self.matrix.reshape(self.n_det * self.n_time, self.n_sky)
+
+    def _forward(self, sky: np.ndarray) -> np.ndarray:
+        x = np.asarray(sky, dtype=self.dtype)
+        return (self._flat @ x).reshape(self.n_det, self.n_time)
+
+    def _adjoint(self, counts: np.ndarray) -> np.ndarray:
+        y = np.asarray(counts, dtype=self.dtype).ravel()
+        return y @ self._flat
+
+    def forward_detectors(self, sky: np.ndarray, detectors: np.ndarray) -> np.ndarray:
+        """``(P S)[detectors]``: only those detectors' rows (one product per detector)."""
+        x = np.asarray(self._check_sky(sky), dtype=self.dtype)
+        return np.stack([self.matrix[d] @ x for d in np.asarray(detectors).ravel()])
+
+    def adjoint_detectors(self, counts: np.ndarray, detectors: np.ndarray) -> np.ndarray:
+        """``P_D^T Y`` from only those detectors' rows."""
+        det = np.asarray(detectors).ravel()
+        y = np.asarray(counts, dtype=self.dtype).reshape(det.size, self.n_time)
+        out = np.zeros(self.n_sky, dtype=self.dtype)
+        for k, d in enumerate(det):
+            out += y[k] @ self.matrix[d]
+        return out
+
+    def block(
+        self, t: tuple[int, int] | None = None, n: tuple[int, int] | None = None
+    ) -> np.ndarray:
+        """``P[:, t0:t1, n0:n1]`` (a view of :attr:`matrix`; ``None`` = whole axis)."""
+        t0, t1 = (0, self.n_time) if t is None else t
+        n0, n1 = (0, self.n_sky) if n is None else n
+        return self.matrix[:, t0:t1, n0:n1]
+
+    def materialise(self) -> MaterialisedResponse:
+        """This response (it is in memory already)."""
+        return self
+
+
+def _set_metadata(
+    op: ResponseOperator,
+    instrument: Any,
+    grid: Any,
+    time_bins: Any,
+    model: Any,
+    energy: Any,
+) -> None:
+    """Check the shapes implied by the metadata against the operator and attach it."""
+    if instrument is not None:
+        if not isinstance(instrument, Instrument):
+            raise ParameterError(
+                f"instrument must be an Instrument, got {type(instrument).__name__}"
+            )
+        if len(instrument.detectors) != op.n_det:
+            raise ParameterError(
+                f"instrument has {len(instrument.detectors)} detectors but the response has "
+                f"n_det = {op.n_det}"
+            )
+    if grid is not None and int(grid.size) != op.n_sky:
+        raise ParameterError(f"grid has {grid.size} pixels but the response has n_sky = {op.n_sky}")
+    if time_bins is not None:
+        time_bins = TimeBinning.coerce(time_bins)
+        if time_bins.n_bins != op.n_time:
+            raise ParameterError(
+                f"time_bins has {time_bins.n_bins} bins but the response has "
+                f"n_time = {op.n_time}"
+            )
+    op.instrument = instrument
+    op.grid = grid
+    op.time_bins = time_bins
+    op.model = None if model is None else get_model(model)
+    op.energy = None if energy is None else float(energy)
 
 
 def _products(

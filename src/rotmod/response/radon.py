@@ -51,6 +51,7 @@ from rotmod.profiles.base import ProjectedGeometry
 from rotmod.response._plan import distinct_bins, fold_half_turn, repeat_half_turn
 from rotmod.response.materialised import MaterialisedResponse
 from rotmod.response.operator import ResponseOperator
+from rotmod.response.parallel import map_blocks
 from rotmod.response.spec import ResponseSpec, as_spec, restore_fields
 from rotmod.response.stored import STORE_KINDS, StoreKind
 
@@ -602,8 +603,6 @@ class RadonResponse(ResponseOperator):
     # -- products --------------------------------------------------------------------------
 
     def _run(self, func: Any, vec: np.ndarray) -> list[Any]:
-        from rotmod.response.parallel import map_blocks
-
         parts: list[Any] = [None] * len(self.blocks)
         for i, res in map_blocks(func, self.blocks, self._factors, vec,
                                  scheduler=self.scheduler, client=self.client,

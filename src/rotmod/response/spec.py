@@ -17,13 +17,12 @@ from typing import Any
 
 import numpy as np
 
-from rotmod._validate import as_distance, as_float_dtype, as_scalar
+from rotmod._validate import as_distance, as_energy_scalar, as_float_dtype
 from rotmod.binning import TimeBinning
-from rotmod.conventions import ENERGY_UNIT
 from rotmod.errors import InstrumentMismatchError, ParameterError
 from rotmod.geometry import Instrument
 from rotmod.profiles.base import DEFAULT_MODEL, MODELS, ProfileModel, get_model
-from rotmod.sky.geometry import SkyGeometry
+from rotmod.sky.geometry import SkyGeometry, grid_from_dict
 
 __all__ = ["ResponseSpec", "as_spec", "check_response_matches", "describe", "restore_fields"]
 
@@ -118,7 +117,7 @@ class ResponseSpec:
         dt = as_float_dtype(self.dtype)
         inst = _select_detectors(instrument, detectors)
         e = self.energy
-        e = None if e is None else as_scalar(e, "energy", ENERGY_UNIT, lo=0.0, lo_open=True)
+        e = None if e is None else as_energy_scalar(e, "energy")
         mdl = get_model(self.model)
         dist = None
         if self.distance is not None:
@@ -256,30 +255,34 @@ def restore_fields(meta: dict[str, Any]) -> dict[str, Any]:
     """The objects stored metadata describes: ``instrument``, ``grid``, ``time_bins``,
     ``model``, ``energy``, ``distance`` and ``dtype`` (``None`` where absent; ``model``
     also ``None`` when it is not a model this rotmod knows with these parameters)."""
-    # Function-local: rotmod.sky imports astropy's coordinates and WCS machinery, which only
-    # a stored response's metadata needs here.
-    from rotmod.sky import grid_from_dict
-
     out: dict[str, Any] = {}
     inst = meta.get("instrument")
     out["instrument"] = None if inst is None else Instrument.from_dict(inst)
     out["grid"] = None if meta.get("grid") is None else grid_from_dict(meta["grid"])
     tb = meta.get("time_bins")
     out["time_bins"] = None if tb is None else TimeBinning.from_dict(tb)
-    model = None
     desc = meta.get("model")
-    if desc is not None and desc.get("model") in MODELS:
-        m = get_model(desc["model"])
-        model = m if m.describe() == desc else None
-        if model is None and desc.get("model") == "standard":
-            from rotmod.profiles import StandardModel  # the package, not its base module
-
-            model = StandardModel(desc.get("transmission", 0.0))
-    out["model"] = model
+    out["model"] = None if desc is None else _restore_model(desc)
     out["energy"] = meta.get("energy")
     out["distance"] = meta.get("distance")
     out["dtype"] = np.dtype(meta.get("dtype", "float32"))
     return out
+
+
+def _restore_model(desc: dict[str, Any]) -> ProfileModel | None:
+    """The registered model that :meth:`ProfileModel.describe` described as ``desc``: the
+    registry's entry, given the described parameters when they are not its defaults; ``None``
+    for a name or parameters this rotmod does not know."""
+    name = desc.get("model")
+    if name not in MODELS:
+        return None
+    model = get_model(name)
+    if model.describe() != desc:
+        try:
+            model = MODELS.get(name)(**{k: v for k, v in desc.items() if k != "model"})
+        except TypeError:  # parameters this model does not take
+            return None
+    return model if model.describe() == desc else None
 
 
 # ------------------------------------------------------------------------------ comparison
@@ -332,7 +335,7 @@ _ENCODE: dict[str, Callable[[Any], Any]] = {
     "grid": lambda v: v.to_dict(),
     "time_bins": lambda v: TimeBinning.coerce(v).to_dict(),
     "model": lambda v: get_model(v).describe(),
-    "energy": _in("keV"),
+    "energy": lambda v: as_energy_scalar(v, "energy"),
     "distance": _distance,
 }
 

@@ -26,6 +26,7 @@ import numpy as np
 from astropy.coordinates import ICRS, CartesianRepresentation, SkyCoord, SkyOffsetFrame
 
 from rotmod._validate import as_angle, as_angle_scalar, as_array, as_scalar
+from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
 
 __all__ = ["Attitude"]
@@ -83,21 +84,17 @@ class Attitude:
         # Offset frame: x toward the pointing, y toward +longitude (east at roll 0), z toward
         # +latitude (the roll's direction).  Instrument (x, y, z) = offset (y, z, x): a cyclic
         # permutation, so both are right-handed.
-        x, y, z = (np.asarray(getattr(c, k).value, dtype=float) for k in ("y", "z", "x"))
-        theta = np.arctan2(np.hypot(x, y), z)
-        phi = np.arctan2(y, x)
+        theta, phi = source_angles(np.stack([c.y.value, c.z.value, c.x.value], axis=-1))
         return theta * u.rad, phi * u.rad
 
     def to_sky(self, theta: Any, phi: Any) -> SkyCoord:
         """Sky positions (ICRS) of instrument directions ``(theta, phi)`` (deg if plain)."""
         th = as_angle(theta, "theta", lo=0.0, hi=180.0)
         ph = as_angle(phi, "phi")
-        th, ph = np.broadcast_arrays(th, ph)
-        st = np.sin(th)
-        offset = SkyCoord(
-            x=np.cos(th), y=st * np.cos(ph), z=st * np.sin(ph), representation_type="cartesian",
-            frame=self.frame,
-        )
+        d = source_direction(*np.broadcast_arrays(th, ph))
+        # Offset (x, y, z) = instrument (z, x, y): see to_instrument.
+        offset = SkyCoord(x=d[..., 2], y=d[..., 0], z=d[..., 1], representation_type="cartesian",
+                          frame=self.frame)
         out = offset.transform_to(ICRS())
         return SkyCoord(out.ra, out.dec, frame="icrs")
 

@@ -25,17 +25,15 @@ without other changes.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import astropy.units as u
 import numpy as np
+from astropy.io import fits
+from astropy.wcs import WCS
 
 from rotmod.errors import ParameterError
 from rotmod.registry import Registry
-
-if TYPE_CHECKING:
-    from astropy.io.fits import HDUList
-    from astropy.wcs import WCS
 
 __all__ = ["GRID_KINDS", "SkyGeometry", "WcsGeometry", "grid_from_dict", "image_from_hdus",
            "pixel_table_hdus"]
@@ -122,8 +120,6 @@ class WcsGeometry(SkyGeometry):
                    bunit: str) -> list[Any]:
         """Primary image with the WCS; the uncertainty (if any) as an ``UNCERTAINTY`` image
         with the same WCS."""
-        from astropy.io import fits  # astropy.io.fits loads only when an image is written
-
         hdus = [fits.PrimaryHDU(image, header=self.wcs().to_header())]
         hdus[0].header["BUNIT"] = (bunit, "sky units of the response")
         if uncertainty is not None:
@@ -149,8 +145,6 @@ def pixel_table_hdus(image: np.ndarray, uncertainty: np.ndarray | None, bunit: s
     index : (str, array_like), optional
         A first column of explicit integer pixel indices (``("PIXEL", pixels)`` for HEALPix).
     """
-    from astropy.io import fits  # astropy.io.fits loads only when an image is written
-
     primary = fits.PrimaryHDU()
     primary.header["BUNIT"] = (bunit, "sky units of the response")
     cols = []
@@ -162,7 +156,7 @@ def pixel_table_hdus(image: np.ndarray, uncertainty: np.ndarray | None, bunit: s
     return [primary, fits.BinTableHDU.from_columns(cols, name=name)]
 
 
-def image_from_hdus(hdul: HDUList, source: str = "file") -> tuple[
+def image_from_hdus(hdul: fits.HDUList, source: str = "file") -> tuple[
         np.ndarray, np.ndarray | None, WCS | None]:
     """Image, uncertainty and WCS (None for a pixel table) of either FITS form.
 
@@ -177,9 +171,6 @@ def image_from_hdus(hdul: HDUList, source: str = "file") -> tuple[
     ParameterError
         Neither a 2-D primary image nor a table with an ``INTENSITY`` column.
     """
-    from astropy.io import fits  # astropy.io.fits and .wcs load only when an image is read
-    from astropy.wcs import WCS
-
     primary = hdul[0]
     if primary.data is not None and primary.data.ndim == 2:
         img = np.array(primary.data, dtype=float)

@@ -21,19 +21,17 @@ against astropy).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import astropy.units as u
 import numpy as np
+from astropy.wcs import WCS
 
 from rotmod._validate import as_angle, as_scalar
 from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
 from rotmod.limits import check_memory
 from rotmod.sky.geometry import GRID_KINDS, WcsGeometry
-
-if TYPE_CHECKING:
-    from astropy.wcs import WCS
 
 __all__ = ["SkyGrid"]
 
@@ -177,8 +175,6 @@ class SkyGrid(WcsGeometry):
 
     def wcs(self) -> WCS:
         """An `astropy.wcs.WCS` (TAN) for images on this grid (see module notes)."""
-        from astropy.wcs import WCS
-
         ny, nx = self.shape
         w = WCS(naxis=2)
         w.wcs.ctype = ["RA---TAN", "DEC--TAN"]

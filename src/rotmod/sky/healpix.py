@@ -85,7 +85,7 @@ class HealpixGrid(SkyGeometry):
             )
 
     def _healpix(self) -> Any:
-        import astropy_healpix as hp
+        import astropy_healpix as hp  # optional (HEALPix grids)
         return hp.HEALPix(nside=self.nside, order=self.order, frame=ICRS())
 
     @property

@@ -8,7 +8,8 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle, as_array
+from rotmod._validate import as_angle, as_array, as_energy
+from rotmod.energy import PowerLaw
 from rotmod.errors import ParameterError
 
 __all__ = ["PointSources"]
@@ -65,9 +66,7 @@ class PointSources:
         th = _broadcast("theta", th, n)
         ph = _broadcast("phi", ph, n)
         rate = _broadcast("rate", as_array(self.rate, "rate", 1 / u.s, lo=0.0, ndim=1), n)
-        energy = _broadcast(
-            "energy", as_array(self.energy, "energy", u.keV, lo=0.0, lo_open=True, ndim=1), n
-        )
+        energy = _broadcast("energy", as_energy(self.energy, "energy", ndim=1), n)
         for name, arr in (("theta", th), ("phi", ph), ("rate", rate), ("energy", energy)):
             arr = np.array(arr, dtype=float)
             arr.flags.writeable = False
@@ -76,7 +75,7 @@ class PointSources:
         if (self.spectrum is None) != (self.band is None):
             raise ParameterError("spectrum and band go together: give both or neither")
         if self.band is not None:
-            band = as_array(self.band, "band", u.keV, lo=0.0, lo_open=True)
+            band = as_energy(self.band, "band")
             if band.shape != (n, 2) or np.any(band[:, 0] >= band[:, 1]):
                 raise ParameterError(f"band must be ({n}, 2) increasing keV pairs, got "
                                      f"shape {band.shape}")
@@ -157,7 +156,7 @@ class PointSources:
             Lines (keV), or a spectrum (:meth:`with_spectrum`).
         """
         theta, phi = attitude.to_instrument(coords)
-        if hasattr(energy, "bands"):  # a spectrum
+        if isinstance(energy, PowerLaw):
             return cls.with_spectrum(theta, phi, rate, energy)
         return cls(np.atleast_1d(theta), np.atleast_1d(phi), rate, energy)
 

@@ -23,7 +23,7 @@ def disc_flux(source: Any, centre: Any, radius: float) -> float:
     Polar Gauss–Legendre in the radius (64 nodes) and the trapezoid rule in the angle (256
     nodes; exponentially accurate for the periodic, analytic integrand): relative error
     below 1e-13 for ``z_s > radius / 4`` (checked against the on-axis closed form
-    ``2 pi (1 - z / sqrt(z^2 + r^2))`` in tests/test_asbuilt.py).
+    ``2 pi (1 - z / sqrt(z^2 + r^2))`` in tests/profiles/test_asbuilt.py).
     """
     S = np.asarray(source, dtype=float)
     cx, cy = (float(v) for v in np.asarray(centre, dtype=float)[:2])

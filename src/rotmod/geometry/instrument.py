@@ -163,7 +163,7 @@ class Instrument:
 
         Every value not given is the paper's (lead, a = b = c = 4 cm, h = 2 cm, L = 100 cm,
         one detector, a 60 s turn; the ``paper`` preset, ``rotmod/presets/paper.toml``,
-        describes the same instrument, and tests/test_geometry.py checks that the two stay
+        describes the same instrument, and tests/geometry/test_geometry.py checks that the two stay
         equal); ``b`` and ``c`` follow ``a`` when only ``a`` is given.  Like the preset, the
         slats' attenuation comes from XCOM at the energy asked for; ``sigma`` (cm2/g) fixes
         it at every energy instead (the paper's own scenarios:

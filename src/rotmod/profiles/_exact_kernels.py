@@ -34,7 +34,8 @@ sub-piece takes 12-point Gauss–Legendre in ``t``, or 8-point away from the edg
 limits were chosen from the measured quadrature error (<= 1e-12 relative per sub-piece).
 Parts where the exponent exceeds ``_CLIP_CUT`` (``T < 2.4e-16``) are dropped.  Measured
 against adaptive quadrature over random geometries (including the hard ones of
-``tests/test_exact.py``) the result is accurate to better than 1e-12; the module claims 1e-10.
+``tests/profiles/test_exact.py``) the result is accurate to better than 1e-12; the module
+claims 1e-10.
 """
 
 from __future__ import annotations
@@ -284,7 +285,8 @@ def _clip_integral(u1, u2, e1, e2, uc, radius):
     """∫_{u1}^{u2} exp(-E(u)) dΦ(u) for E linear from e1 at u1 to e2 at u2 (e1, e2 >= 0).
 
     Agrees with a converged Gauss–Legendre rule in the disc angle to ~1e-14
-    (tests/test_exact.py) at a fraction of its cost: see :func:`_clip_x` and :func:`_clip_t`.
+    (tests/profiles/test_exact.py) at a fraction of its cost: see :func:`_clip_x` and
+    :func:`_clip_t`.
     """
     x1 = (u1 - (uc - radius)) / radius
     x2 = (u2 - (uc - radius)) / radius

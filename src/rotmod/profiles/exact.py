@@ -23,7 +23,7 @@ class ExactModel(ProfileModel):
     """Exact profile from first principles, valid for every geometry (notes in ``_exact_kernels``).
 
     Clip pieces are integrated by Gauss–Legendre quadrature: accurate to 1e-10 (better than
-    1e-12 measured against brute-force quadrature, tests/test_exact.py).  Instruments as
+    1e-12 measured against brute-force quadrature, tests/profiles/test_exact.py).  Instruments as
     built (axis offset and tilt, slat patterns, finite outlines, ...) take
     :mod:`rotmod.profiles._asbuilt` (docs/physics.md, "The instrument as built").
     """

@@ -57,7 +57,7 @@ def segment_fraction(tau: float) -> float:
 
     ``F(tau) = arccos(1 - 2 tau)/pi - 2 (1 - 2 tau) sqrt(tau - tau^2)/pi`` with ``tau``
     clamped to [0, 1] (the paper's Lambda).  Same values as that closed form to ~1e-16
-    (tests/test_profiles.py), but branch-free (so numba vectorises loops over it) and
+    (tests/profiles/test_models.py), but branch-free (so numba vectorises loops over it) and
     without ``acos``: with ``q = min(tau, 1 - tau)``,
     ``acos(1 - 2q) = 2 asin(sqrt q)`` for ``q <= 1/4`` and ``pi/2 - asin(1 - 2q)`` above,
     and ``asin`` on [0, 1/2] is a polynomial.

@@ -13,6 +13,7 @@ __all__ = [
     "ModelValidityError",
     "ParameterError",
     "RotmodError",
+    "UnknownNameError",
 ]
 
 
@@ -22,6 +23,13 @@ class RotmodError(ValueError):
 
 class ParameterError(RotmodError):
     """A parameter is out of its allowed range, has the wrong unit, shape or is not finite."""
+
+
+class UnknownNameError(ParameterError, KeyError):
+    """A name no registry entry has (also a :class:`KeyError`: ``registry[name]`` is a lookup)."""
+
+    # KeyError quotes its message; this one reads like every other rotmod error.
+    __str__ = Exception.__str__
 
 
 class MaterialError(RotmodError):

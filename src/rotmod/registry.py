@@ -23,10 +23,11 @@ rotmod.errors.ParameterError: shape must be one of ['disc'], got 'dsic'; did you
 from __future__ import annotations
 
 import difflib
+import functools
 from collections.abc import Callable, Iterator
 from typing import Any, Generic, TypeVar, overload
 
-from rotmod.errors import ParameterError
+from rotmod.errors import ParameterError, UnknownNameError
 
 __all__ = ["Registry"]
 
@@ -59,15 +60,19 @@ class Registry(Generic[T]):
         Raises
         ------
         ParameterError
-            ``name`` is not a non-empty string, or is registered already (a second
-            definition would silently replace the first).
+            ``name`` is not a non-empty string, or is registered already by something else
+            (a second definition would silently replace the first).  The same class or
+            function defined again -- a notebook cell run twice, a reloaded module --
+            replaces its earlier self.
         """
         if not isinstance(name, str) or not name:
             raise ParameterError(f"{self.kind} name must be a non-empty string, got {name!r}")
 
         def add(entry: T) -> T:
-            if name in self._entries and self._entries[name] is not entry:
-                raise ParameterError(f"{self.kind} {name!r} is registered already")
+            old = self._entries.get(name)
+            if old is not None and old is not entry and not _redefinition(old, entry):
+                raise ParameterError(f"{self.kind} {name!r} is registered already "
+                                     f"(by {_where(old)})")
             self._entries[name] = entry
             return entry
 
@@ -84,8 +89,9 @@ class Registry(Generic[T]):
 
         Raises
         ------
-        ParameterError
-            Unknown name: the message lists the names and suggests the closest one.
+        UnknownNameError
+            Unknown name (a :class:`ParameterError` and a :class:`KeyError`): the message
+            lists the names and suggests the closest one.
         """
         try:
             return self._entries[name]
@@ -96,7 +102,19 @@ class Registry(Generic[T]):
             close = difflib.get_close_matches(name, self._entries, n=1, cutoff=0.6)
             if close:
                 msg += f"; did you mean {close[0]!r}?"
-        raise ParameterError(msg)
+        raise UnknownNameError(msg)
+
+    def __getitem__(self, name: str) -> T:
+        """``registry[name]``: as :meth:`get` (the error is also a :class:`KeyError`)."""
+        return self.get(name)
+
+    def keys(self) -> tuple[str, ...]:
+        """Registered names, in registration order (as :meth:`names`)."""
+        return self.names()
+
+    def values(self) -> tuple[T, ...]:
+        """Registered entries, in registration order."""
+        return tuple(self._entries.values())
 
     def names(self) -> tuple[str, ...]:
         """Registered names, in registration order."""
@@ -117,3 +135,25 @@ class Registry(Generic[T]):
 
     def __repr__(self) -> str:
         return f"<Registry of {len(self)} {self.kind}(s): {', '.join(self._entries)}>"
+
+
+def _origin(entry: object) -> tuple[str, str, object] | None:
+    """Where ``entry`` was defined: module, qualified name (and the bound parameters of a
+    ``functools.partial``); ``None`` for an object with no definition site."""
+    target = entry.func if isinstance(entry, functools.partial) else entry
+    qualname = getattr(target, "__qualname__", None)
+    if qualname is None:
+        return None
+    return (getattr(target, "__module__", "?"), qualname, getattr(entry, "keywords", None))
+
+
+def _where(entry: object) -> str:
+    origin = _origin(entry)
+    return repr(entry) if origin is None else f"{origin[0]}.{origin[1]}"
+
+
+def _redefinition(old: object, new: object) -> bool:
+    """Whether ``new`` is ``old`` defined again (a notebook cell run twice, a reloaded
+    module), not another object that happens to want the same name."""
+    origin = _origin(old)
+    return origin is not None and origin == _origin(new)

@@ -96,6 +96,10 @@ def test_fold_takes_the_response_binning_and_a_typed_band():
     with pytest.raises(ParameterError, match=r"time_bins must have one bin per counts column "
                                              r"\(4\), got 5"):
         FoldedProfiles(f.counts, f.exposure, 5, inst, f.gti)
+    # The band has one owner: untyped keys would be ignored by the energy check of a fit.
+    with pytest.raises(ParameterError, match=r"meta must not hold e_max, e_min: give the band "
+                                             r"of the folded counts as energy_band="):
+        FoldedProfiles(f.counts, f.exposure, 4, inst, f.gti, meta={"e_min": 1, "e_max": 2})
 
 
 def test_folded_simulation_recovers_model():

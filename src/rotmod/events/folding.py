@@ -106,9 +106,10 @@ class FoldedProfiles:
         reconstruction checks the response's energy against it.  ``None``: not known (no
         check).
     meta : dict
-        Free-form metadata (e.g. the event file's header values).  ``e_min``/``e_max`` keys
-        are dropped: the band of the counts is :attr:`energy_band` (an event file's
-        ``E_MIN``/``E_MAX`` describe the event file, not the folded window).
+        Free-form metadata (e.g. the event file's header values), without ``e_min``/``e_max``
+        keys: the band of the counts is :attr:`energy_band` (:func:`fold` leaves out an
+        event file's ``e_min``/``e_max``, which describe the event file, not the folded
+        window).
     """
 
     counts: np.ndarray
@@ -156,8 +157,15 @@ class FoldedProfiles:
         object.__setattr__(self, "start_phase", phase)
         if self.energy_band is not None:
             object.__setattr__(self, "energy_band", EnergyBand.coerce(self.energy_band))
-        meta = {k: v for k, v in self.meta.items() if k not in _BAND_KEYS}
-        object.__setattr__(self, "meta", meta)
+        given = sorted(k for k in _BAND_KEYS if k in self.meta)
+        if given:
+            # The band of the counts has one owner; a key here would be ignored by the fits,
+            # which check the response's energy against energy_band only.
+            raise ParameterError(
+                f"meta must not hold {', '.join(given)}: give the band of the folded counts "
+                "as energy_band=EnergyBand(e_min, e_max)"
+            )
+        object.__setattr__(self, "meta", dict(self.meta))
 
     def __repr__(self) -> str:
         good = float(np.sum(self.gti[:, 1] - self.gti[:, 0]))
@@ -248,5 +256,6 @@ def fold(
     counts = np.bincount(events.detector[good].astype(np.int64) * n + k, minlength=n_det * n)
     exposure = exposure_per_bin(g, tb, inst.rotation_period, events.start_phase)
     return FoldedProfiles(
-        counts.reshape(n_det, n), exposure, tb, inst, g, events.start_phase, band, events.meta
+        counts.reshape(n_det, n), exposure, tb, inst, g, events.start_phase, band,
+        {k: v for k, v in events.meta.items() if k not in _BAND_KEYS}
     )

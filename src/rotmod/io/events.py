@@ -588,7 +588,9 @@ def read_folded(path: str | os.PathLike) -> FoldedProfiles:
                 np.append(lo, hi[-1]) * u.deg, str(h.get("BINMODE", "center")),
                 int(_num(h, "BINNSUB", path, "PROFILES")) if "BINNSUB" in h else 4,
             )
-            band = EnergyBand.from_dict(meta) if "e_min" in meta and "e_max" in meta else None
+            # E_MIN/E_MAX of a folded file are the band of its counts: the typed band.
+            lo_hi = {k: meta.pop(k) for k in ("e_min", "e_max") if k in meta}
+            band = EnergyBand.from_dict(lo_hi) if len(lo_hi) == 2 else None
             return FoldedProfiles(
                 counts, ex, tb, inst, _read_gti(hdul, path),
                 _key_in(h, "ROT_PHA0", 0.0, u.deg, path) * u.deg, band, meta,

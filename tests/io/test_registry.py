@@ -55,21 +55,31 @@ def test_attitude_tables_refuse_to_overwrite_and_write_atomically(tmp_path) -> N
 
 
 def test_unknown_classes_formats_and_extensions_list_what_is_registered(tmp_path) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
     with pytest.raises(ParameterError, match=r"obj: no writer is registered for builtins\.int; "
                        r"writers: .*EventList \(fits"):
-        rio.write(3, tmp_path / "x.fits")
+        rio.write(3, out / "x.fits")
     cfg = load_instrument_config("paper")
     with pytest.raises(ParameterError, match=r"extension names no format .*\.toml \(toml\)"):
-        rio.write(cfg, tmp_path / "x.txt")
-    with pytest.raises(ParameterError, match=r"format must be one of \['toml', 'yaml'\]"):
-        rio.read(tmp_path / "x.toml", cls=InstrumentConfig, format="tmol")
-    with pytest.raises(ParameterError, match=r"cls: no reader is registered for builtins\.int"):
-        rio.read(tmp_path / "x.toml", cls=int)
-    with pytest.raises(ParameterError, match=r"no registered reader matches it"):
-        rio.read(tmp_path / "x.unknown")
+        rio.write(cfg, out / "x.txt")
     with pytest.raises(ParameterError, match=r"format 'yaml' of .* is read-only"):
-        rio.write(cfg, tmp_path / "x.yaml", format="yaml")
-    assert not list(tmp_path.iterdir())  # every refusal came before any file was made
+        rio.write(cfg, out / "x.yaml", format="yaml")
+    assert not list(out.iterdir())  # every refusal came before any file was made
+    toml, unknown = tmp_path / "x.toml", tmp_path / "x.unknown"
+    toml.touch()
+    unknown.touch()
+    with pytest.raises(ParameterError, match=r"format must be one of \['toml', 'yaml'\]"):
+        rio.read(toml, cls=InstrumentConfig, format="tmol")
+    with pytest.raises(ParameterError, match=r"cls: no reader is registered for builtins\.int"):
+        rio.read(toml, cls=int)
+    with pytest.raises(ParameterError, match=r"no registered reader matches it"):
+        rio.read(unknown)
+    # A missing path is said first, before any guess at what it might have held.
+    with pytest.raises(ParameterError, match=r"x\.fits' does not exist"):
+        rio.read(tmp_path / "x.fits")
+    with pytest.raises(ParameterError, match=r"out' is not a file"):
+        rio.read(out)
 
 
 def test_a_format_is_registered_once() -> None:

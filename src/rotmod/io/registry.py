@@ -176,10 +176,14 @@ def read(path: str | os.PathLike, *, cls: type | str | None = None, format: str 
     Raises
     ------
     ParameterError
-        No reader for ``cls`` or for the file, an unknown format, or a file that several
-        classes could hold (pass ``cls``).
+        No such file, no reader for ``cls`` or for the file, an unknown format, or a file
+        that several classes could hold (pass ``cls``).
     """
     p = Path(path)
+    if not p.is_file():
+        # Before any guessing: a missing file is what to say, not which reader might fit.
+        what = "is not a file" if p.exists() else "does not exist"
+        raise ParameterError(f"path {str(p)!r} {what}")
     if cls is not None:
         key = _class_name(cls)
         if key not in _CLASSES:
@@ -199,7 +203,7 @@ def read(path: str | os.PathLike, *, cls: type | str | None = None, format: str 
     else:
         candidates = _by_extension(candidates, p)
     if len(candidates) > 1:
-        own = [f for f in candidates if f.identify is not None and p.is_file() and f.identify(p)]
+        own = [f for f in candidates if f.identify is not None and f.identify(p)]
         candidates = own or candidates
     if len(candidates) != 1:
         what = "no" if not candidates else "more than one"

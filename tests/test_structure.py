@@ -29,6 +29,22 @@ LAZY_DELEGATIONS = {
     ("rotmod.sky.attitude", "rotmod.io.tables"):
         "AttitudeTable.read/.write are rotmod.io.tables', which reads and writes AttitudeTable",
 }
+#: The layers, lowest first (docs/architecture.md): a module imports, at module level, from
+#: its own layer or lower ones only.  A unit is a top-level module or package of rotmod
+#: (``"rotmod"`` is the package's own ``__init__``, which re-exports the instrument and the
+#: profile models).  Within a layer, the cycle tests keep the arrows one way.
+LAYERS: list[tuple[str, set[str]]] = [
+    ("rules", {"errors", "conventions", "_validate", "_deps", "limits", "registry", "binning",
+               "energy"}),
+    ("instrument", {"materials", "geometry", "config"}),
+    ("models", {"profiles", "rotmod"}),
+    ("sky and data", {"sky", "events"}),
+    ("simulation", {"montecarlo"}),
+    ("files", {"io"}),
+    ("response", {"response"}),
+    ("users", {"reconstruction", "calibration", "design", "plotting", "testing"}),
+    ("products", {"paper", "cli"}),
+]
 #: ``hasattr`` calls allowed in src (module path relative to src/rotmod -> why): none.  Ask
 #: the type (isinstance, or a declared attribute that may be None) instead of probing.
 HASATTR_ALLOWED: dict[str, str] = {}
@@ -168,6 +184,26 @@ def test_rotmod_imports_at_module_level() -> None:
             if r and (m, r) not in LAZY_DELEGATIONS:
                 bad.append(f"{p.relative_to(SRC.parent)}:{line} imports {name} in a function")
     assert not bad, "function-local imports of rotmod modules:\n" + "\n".join(bad)
+
+
+def _unit(module: str) -> str:
+    parts = module.split(".")
+    return "rotmod" if len(parts) == 1 else parts[1]
+
+
+def test_imports_run_downhill_through_the_layers() -> None:
+    layer = {unit: i for i, (_, units) in enumerate(LAYERS) for unit in units}
+    mods = _modules()
+    missing = sorted({_unit(m) for m in mods} - set(layer))
+    assert not missing, f"modules in no layer (add them to LAYERS): {missing}"
+    upward = []
+    for m, p in mods.items():
+        for name, line in _imports(p, m, top_level_only=True):
+            r = _resolve(name, mods)
+            if r and layer[_unit(r)] > layer[_unit(m)]:
+                upward.append(f"{p.relative_to(SRC.parent)}:{line} ({LAYERS[layer[_unit(m)]][0]})"
+                              f" imports {r} ({LAYERS[layer[_unit(r)]][0]})")
+    assert not upward, "imports running up the layers:\n" + "\n".join(upward)
 
 
 def test_no_hasattr() -> None:

@@ -33,7 +33,7 @@ import numba
 import numpy as np
 
 from rotmod import DetectorArray, Instrument, Mask
-from rotmod.config import load_instrument
+from rotmod.io import load_instrument
 from rotmod.limits import MemoryBudgetError
 from rotmod.response import MatrixFreeResponse, RadonResponse, TimeBinning, build_response
 from rotmod.sky import SkyGrid

@@ -166,7 +166,7 @@ def versus_mlem(rows) -> str:
 
 def seeds_table(n_seeds: int) -> str:
     """The default method on the required pairs, over independent noise realisations."""
-    from rotmod.config import load_instrument
+    from rotmod.io import load_instrument
 
     out = [f"\n### {DEFAULT_METHOD} over {n_seeds} noise realisations\n",
            "| case | dip (median, max) | loc err max (deg) | spurious/weakest max | "
@@ -225,7 +225,7 @@ def main() -> None:
                       + "\n\n" + dip_vs_separation(rows, "thin", 0.3))
         print(chunks[-1], flush=True)
     if "proto" in names:
-        from rotmod.config import load_instrument
+        from rotmod.io import load_instrument
 
         pix = 5.0 / 60
         seps = [35 / 60, 30 / 60] if args.quick else [v / 60 for v in (35, 30, 25, 20, 15, 10)]

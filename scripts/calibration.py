@@ -24,7 +24,7 @@ import numpy as np
 
 from rotmod import Instrument
 from rotmod.calibration import bins, fit_calibration, simulate_measurement
-from rotmod.config import load_instrument
+from rotmod.io import load_instrument
 
 #: (theta deg, phi deg, distance cm, energy keV) of the lab sources.
 SOURCES = [

@@ -31,7 +31,7 @@ from scipy.optimize import minimize
 
 from rotmod import Instrument, get_model
 from rotmod.calibration import relative_flux
-from rotmod.config import load_instrument
+from rotmod.io import load_instrument
 from rotmod.response import TimeBinning
 
 

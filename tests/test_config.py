@@ -9,14 +9,9 @@ import astropy.units as u
 import numpy as np
 import pytest
 
-from rotmod.config import (
-    ConfigError,
-    InstrumentConfig,
-    list_presets,
-    load_instrument,
-    load_instrument_config,
-)
+from rotmod.config import ConfigError, InstrumentConfig
 from rotmod.errors import ParameterError, RotmodError
+from rotmod.io import list_presets, load_instrument, load_instrument_config
 
 BASE = {
     "name": "t",
@@ -210,3 +205,14 @@ def test_overlapping_detectors_in_a_list_are_refused() -> None:
                             "positions": [["0 cm", "0 cm"], ["2 cm", "0 cm"]]})
     with pytest.raises(ConfigError, match=r"detectors\.positions: detectors 0 and 1 overlap"):
         InstrumentConfig.from_dict(d)
+
+
+def test_the_file_functions_moved_to_io_warn_where_they_were() -> None:
+    import rotmod.config
+
+    with pytest.warns(DeprecationWarning, match=r"rotmod\.config\.load_instrument moved to "
+                                                r"rotmod\.io"):
+        old = rotmod.config.load_instrument
+    assert old is load_instrument
+    with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
+        rotmod.config.nonsense  # noqa: B018 - the lookup is the test

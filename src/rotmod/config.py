@@ -59,12 +59,13 @@ keV; detectors as a single position or a list) to a file that loads to an equal
 configuration.
 
 Presets ship with the package (``rotmod/presets/*.toml``): ``paper`` and ``prototype``;
-:func:`load_instrument` accepts a preset name or a path.
+:func:`rotmod.io.load_instrument` accepts a preset name or a path.
 
 This module is the schema only.  The files themselves (reading TOML/YAML, ``extends``, the
 presets, writing with tomli-w) are :mod:`rotmod.io.config`'s, registered with
-:func:`rotmod.io.read`/:func:`rotmod.io.write`; ``load_instrument``, ``load_instrument_config``,
-``list_presets`` and ``preset_path`` are still reachable here.  Quantities written as text
+:func:`rotmod.io.read`/:func:`rotmod.io.write`; ``rotmod.config.load_instrument`` (and
+``load_instrument_config``, ``list_presets``, ``preset_path``) are deprecated aliases of
+those in :mod:`rotmod.io`.  Quantities written as text
 follow one rule, :func:`rotmod.conventions.parse_quantity` (its ParameterError becomes a
 :class:`ConfigError` here).
 """
@@ -76,9 +77,10 @@ import difflib
 import math
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import astropy.units as u
 import numpy as np
@@ -89,23 +91,7 @@ from rotmod.errors import MaterialError, ParameterError, RotmodError
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.materials import DATABASE_RANGE_KEV, Material
 
-if TYPE_CHECKING:  # provided at run time by __getattr__ (below), from rotmod.io.config
-    from rotmod.io.config import (
-        list_presets,
-        load_instrument,
-        load_instrument_config,
-        preset_path,
-    )
-
-__all__ = [
-    "ConfigError",
-    "InstrumentConfig",
-    "list_presets",
-    "load_instrument",
-    "load_instrument_config",
-    "parse_quantity",
-    "preset_path",
-]
+__all__ = ["ConfigError", "InstrumentConfig"]
 
 _LAYOUTS = ("single", "list", "hexagonal")
 #: Keys each detector layout takes.
@@ -561,5 +547,8 @@ def __getattr__(name: str) -> Any:
     if name in _MOVED_TO_IO:
         from rotmod.io import config as io_config
 
+        warnings.warn(f"rotmod.config.{name} moved to rotmod.io (rotmod.io.{name}, or "
+                      f"rotmod.io.config.{name}); the old name will be removed",
+                      DeprecationWarning, stacklevel=2)
         return getattr(io_config, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

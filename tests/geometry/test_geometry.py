@@ -97,7 +97,7 @@ def test_conventions_by_ray_tracing(rng):
 def test_paper_instrument_is_the_paper_preset() -> None:
     # Instrument.paper holds the paper's numbers itself (geometry reads no files); the preset
     # file describes the same instrument, value for value.
-    from rotmod.config import load_instrument
+    from rotmod.io import load_instrument
 
     preset, paper = load_instrument("paper"), Instrument.paper()
     assert paper == preset

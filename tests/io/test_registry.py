@@ -7,9 +7,10 @@ import pytest
 
 import rotmod.io as rio
 from rotmod import DetectorArray, Instrument, Mask, Material
-from rotmod.config import InstrumentConfig, list_presets, load_instrument_config
+from rotmod.config import InstrumentConfig
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, FoldedProfiles, fold
+from rotmod.io import list_presets, load_instrument_config
 from rotmod.montecarlo import simulate_observation
 from rotmod.sky import AttitudeTable, PointSources
 

@@ -470,7 +470,8 @@ _FILE = {
 
 
 def test_as_built_instrument_file_round_trip(tmp_path):
-    from rotmod.config import InstrumentConfig, load_instrument
+    from rotmod.config import InstrumentConfig
+    from rotmod.io import load_instrument
 
     cfg = InstrumentConfig.from_dict(_FILE)
     inst = cfg.instrument
@@ -560,7 +561,7 @@ def test_calibration_recovers_offset_and_tilt():
     # four residuals below its 0.1 % point (the pull distribution over seeds, ~N(0, 1), is
     # in docs/validation.md), and resolve the offset from zero by > 20 sigma.
     from rotmod.calibration import fit_calibration, simulate_measurement
-    from rotmod.config import load_instrument
+    from rotmod.io import load_instrument
 
     proto = load_instrument("prototype")
     true = Instrument(dataclasses.replace(proto.mask, axis_offset_x=0.1, tilt_y=0.2),
@@ -612,7 +613,7 @@ def test_simulated_measurement_counts_what_the_model_expects():
     # omega_d photons per bin, so the counts follow photons * omega_d * Pbar (+ background)
     # -- Pearson's chi2 over 19 x 16 bins inside its 0.05 % tails.
     from rotmod.calibration import _profiles, simulate_measurement
-    from rotmod.config import load_instrument
+    from rotmod.io import load_instrument
 
     lab = load_instrument("prototype-lab")
     m = simulate_measurement(lab, 2.0, 30.0, distance=200.0, energy=662.0, time_bins=16,

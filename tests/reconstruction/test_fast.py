@@ -211,7 +211,7 @@ def test_default_method_resolves_a_prototype_pair_at_30_arcmin() -> None:
     # Reduced lab-prototype scenario (the preset: b/L = 1.9 deg = 114'): two equal 122 keV
     # sources 30' (0.26 b/L, 6 pixels of 5') apart, background counts = source counts,
     # 120 time bins of 30 s (8.3e6 counts), three noise realisations.
-    from rotmod.config import load_instrument
+    from rotmod.io import load_instrument
 
     inst = load_instrument("prototype")
     pix = 5.0 / 60.0

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from rotmod import DetectorArray, Instrument, Mask
-from rotmod.config import load_instrument
 from rotmod.errors import ModelValidityError, ParameterError
+from rotmod.io import load_instrument
 from rotmod.limits import MemoryBudgetError
 from rotmod.profiles import get_model
 from rotmod.reconstruction import reconstruct

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from astropy.coordinates import SkyCoord
 
-from rotmod.config import load_instrument
 from rotmod.errors import ParameterError
 from rotmod.events import fold
 from rotmod.geometry import Instrument
+from rotmod.io import load_instrument
 from rotmod.montecarlo import simulate_observation
 from rotmod.reconstruction import reconstruct
 from rotmod.response import TimeBinning, build_response

@@ -28,7 +28,13 @@ from astropy.io import fits
 
 from rotmod.config import InstrumentConfig
 from rotmod.events import EventList, FoldedProfiles
-from rotmod.io.config import read_instrument_config, write_instrument_config
+from rotmod.io.config import (
+    list_presets,
+    load_instrument,
+    load_instrument_config,
+    read_instrument_config,
+    write_instrument_config,
+)
 from rotmod.io.events import read_events, read_folded, write_events, write_folded
 from rotmod.io.images import FitsImage, read_image, write_image
 from rotmod.io.registry import FileFormat, formats, read, register, write
@@ -38,6 +44,9 @@ from rotmod.sky.attitude import AttitudeTable
 __all__ = [
     "FileFormat",
     "formats",
+    "list_presets",
+    "load_instrument",
+    "load_instrument_config",
     "read",
     "read_events",
     "read_folded",

@@ -1,7 +1,7 @@
 """The seed paper's experiments in one place: its scenarios, the profile validation against
 the Monte Carlo, what the paper claims, and the ``rotmod reproduce`` report.
 
-Instruments come from the presets (:func:`rotmod.config.load_instrument`).
+Instruments come from the presets (:func:`rotmod.io.load_instrument`).
 """
 
 from rotmod.paper.report import SIZES, STEPS, ReproduceResult, reproduce

@@ -21,10 +21,10 @@ import astropy.units as u
 import numpy as np
 
 from rotmod.binning import TimeBinning
-from rotmod.config import load_instrument
 from rotmod.errors import ParameterError
 from rotmod.events import fold
 from rotmod.geometry import DetectorArray, Instrument
+from rotmod.io import load_instrument
 from rotmod.materials import PAPER_SIGMA_662
 from rotmod.montecarlo import simulate_observation
 from rotmod.reconstruction import StoppingRule

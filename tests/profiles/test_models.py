@@ -419,3 +419,18 @@ def test_a_new_model_is_one_registered_class(paper_instrument, tmp_path) -> None
 
     assert png.stat().st_size > 0 and name not in MODEL_STYLE
     assert model_style(name)["color"] not in {s["color"] for s in MODEL_STYLE.values()}
+
+
+def test_a_model_written_for_the_private_hook_still_works(paper_instrument) -> None:
+    # Before the hook was public, a model implemented `_evaluate`: it keeps working, told once
+    # (at class creation) to rename the method.
+    from rotmod.profiles.base import ProfileModel
+
+    with pytest.warns(DeprecationWarning, match=r"Flat\._evaluate: the kernel hook is now the "
+                                                r"public ProfileModel\.evaluate"):
+        class Flat(ProfileModel):
+            def _evaluate(self, instrument, geom, cos_xi, sin_xi, out):
+                out[...] = 0.5
+
+    p = Flat().profile(paper_instrument, rad([0.1]), rad([0.0]), rad([0.0, 1.0]))
+    np.testing.assert_array_equal(p, np.full((1, 2, 1), 0.5))

@@ -22,6 +22,7 @@ and sums.
 from __future__ import annotations
 
 import functools
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -212,6 +213,16 @@ class ProfileModel(ABC):
     #: Whether the model describes the instrument as built (``Instrument.is_ideal`` false,
     #: sources at a finite distance); the others refuse such instruments.
     handles_as_built: ClassVar[bool] = False
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        # Models written before the hook was public implement `_evaluate`: they keep working
+        # (their kernel is the hook) and are told the new name.
+        if "_evaluate" in cls.__dict__ and "evaluate" not in cls.__dict__:
+            warnings.warn(f"{cls.__qualname__}._evaluate: the kernel hook is now the public "
+                          "ProfileModel.evaluate; rename the method", DeprecationWarning,
+                          stacklevel=2)
+            cls.evaluate = cls.__dict__["_evaluate"]  # type: ignore[method-assign]
 
     def profile(
         self,

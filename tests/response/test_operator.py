@@ -17,8 +17,11 @@ from rotmod.profiles import get_model
 from rotmod.response import (
     MaterialisedResponse,
     MatrixFreeResponse,
+    RadonResponse,
+    ResponseSpec,
     TimeBinning,
     build_response,
+    save_response,
 )
 from rotmod.sky import SkyGrid
 from rotmod.testing import MatrixOperator, dot_test
@@ -348,3 +351,76 @@ def test_block_and_materialise_are_the_same_values_for_every_operator(inst, grid
                                    rtol=0, atol=1e-14)
         np.testing.assert_allclose(op.materialise().matrix, mat.matrix, rtol=0, atol=1e-14)
     assert mat.materialise() is mat
+
+
+# ------------------------------------------------------------------ block ranges, checked
+@pytest.mark.parametrize(
+    ("t", "n", "match"),
+    [
+        (None, (-1, 2), r"n must satisfy 0 <= n0 < n1 <= n_sky = 72, got \(-1, 2\)"),
+        ((0, 49), None, r"t must satisfy 0 <= t0 < t1 <= n_time = 48, got \(0, 49\)"),
+        ((2, 1), None, r"t must satisfy 0 <= t0 < t1 <= n_time = 48, got \(2, 1\)"),
+        ((3, 3), None, r"t must satisfy .*got \(3, 3\)"),
+        (None, (70, 73), r"n must satisfy 0 <= n0 < n1 <= n_sky = 72, got \(70, 73\)"),
+        ((0.0, 2), None, r"t must be a pair of integers \(t0, t1\) with 0 <= t0 < t1 <= "
+                         r"n_time = 48, got \(0\.0, 2\)"),
+        ((False, 2), None, r"t must be a pair of integers"),
+        (5, None, r"t must be a pair of integers .*got 5"),
+        (None, (0, 1, 2), r"n must be a pair of integers \(n0, n1\) .*got \(0, 1, 2\)"),
+    ],
+)
+def test_every_operator_checks_its_block_ranges(inst, grid, mat, tmp_path, t, n, match):
+    ops = {
+        "materialised": mat,
+        "matrix-free": MatrixFreeResponse(inst, grid, 48, "advanced-approx", block_size=(7, 20)),
+        "stored": save_response(tmp_path / "r.zarr", mat, chunks=(10, 30)),
+        "radon": RadonResponse(inst, grid, 48, dtype=np.float64),
+        "default": MatrixOperator(mat.matrix),  # ResponseOperator.block itself
+    }
+    for kind, op in ops.items():
+        with pytest.raises(ParameterError, match=match):
+            op.block(t=t, n=n)
+        # The edges of the ranges are valid, numpy integers too.
+        edge = op.block(t=(np.int64(47), 48), n=(71, np.int32(72)))
+        assert edge.shape == (7, 1, 1), kind
+
+
+# -------------------------------------------------- one way to compute a whole response
+@pytest.mark.parametrize("time_bins", [48, 15, TimeBinning(12, "average", 3)])
+def test_build_response_is_the_matrix_free_materialise(inst, grid, time_bins):
+    ref = build_response(inst, grid, time_bins, "advanced-approx")
+    free = MatrixFreeResponse(inst, grid, time_bins, "advanced-approx", dtype=np.float32,
+                              block_size=(5, 30))
+    # The same local fill (ResponsePlan.fill): bit for bit, whatever the block size.
+    np.testing.assert_array_equal(free.materialise().matrix, ref.matrix)
+    # The block walk (as on a cluster; here locally, with a progress bar): every value from
+    # the same kernel on the same inputs, bit for bit.
+    for block_size in (None, (5, 30)):
+        walked = build_response(inst, grid, time_bins, "advanced-approx", progress=True,
+                                block_size=block_size)
+        np.testing.assert_array_equal(walked.matrix, ref.matrix)
+        assert walked.metadata() == ref.metadata()
+
+
+# ------------------------------------------------------ a matrix from elsewhere, described
+def test_materialised_with_every_field_adopts_a_spec(inst, grid, mat):
+    m = MaterialisedResponse(mat.matrix, instrument=inst, grid=grid, time_bins=48,
+                             model="advanced-approx")
+    assert m.spec == mat.spec and m.metadata() == mat.metadata()
+    assert m.spec == ResponseSpec(inst, grid, 48, "advanced-approx", dtype=np.float64)
+    # Partial metadata stays loose, checked by the spec's own validators.
+    part = MaterialisedResponse(mat.matrix, grid=grid, energy=662.0)
+    assert part.spec is None and part.grid is grid and part.energy == 662.0
+    assert part.metadata()["grid"] == grid.to_dict() and part.metadata()["instrument"] is None
+    for kwargs, message in (
+        ({"energy": -1.0}, "energy must be > 0"),
+        ({"instrument": "paper"}, "instrument must be an Instrument, got str"),
+        ({"grid": 3}, "grid must be a sky grid"),
+        ({"model": "nope"}, "model must be one of"),
+        ({"time_bins": 12}, "time_bins has 12 bins but the response has n_time = 48"),
+        ({"instrument": Instrument(inst.mask, DetectorArray.hexagonal(3.8, rings=2)),
+          "grid": grid, "time_bins": 48, "model": "exact"},
+         "instrument has 19 detectors but the response has n_det = 7"),
+    ):
+        with pytest.raises(ParameterError, match=message):
+            MaterialisedResponse(mat.matrix, **kwargs)

@@ -20,6 +20,7 @@ from rotmod.binning import TimeBinning
 from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
 from rotmod.profiles.base import ProfileModel, ProjectedGeometry, project
+from rotmod.response.parallel import block_grid, block_ranges, iter_blocks
 from rotmod.response.spec import ResponseSpec
 
 __all__ = ["ResponsePlan", "distinct_bins", "fold_half_turn", "make_plan", "repeat_half_turn"]
@@ -147,8 +148,7 @@ class ResponsePlan:
         """
         nd, nt, nn = self.shape
         d0, d1 = (0, nd) if d is None else d
-        t0, t1 = (0, nt) if t is None else t
-        n0, n1 = (0, nn) if n is None else n
+        (t0, t1), (n0, n1) = block_ranges(t, n, nt, nn)
         geom = self._sub_geometry(d0, d1, n0, n1)
         shape = (d1 - d0, t1 - t0, n1 - n0)
         if out is None:
@@ -165,6 +165,39 @@ class ResponsePlan:
             acc += tmp
         np.multiply(acc, 1.0 / xi.shape[0], out=out, casting="unsafe")
         return out
+
+    def fill(self, out: np.ndarray, *, max_block_bytes: int = 64 << 20) -> np.ndarray:
+        """Fill ``out = P`` locally (numba threads inside each kernel call): the one local
+        way to compute the whole response (``MatrixFreeResponse.materialise``, and so
+        ``build_response``).
+
+        Parameters
+        ----------
+        out : ndarray
+            C-contiguous, of :attr:`shape` and :attr:`dtype`; returned.
+        max_block_bytes : int
+            Bound of the float64 temporaries of average mode.
+
+        Notes
+        -----
+        Centre mode writes straight into ``out``, one detector at a time (``out[d]`` is
+        C-contiguous), so the only memory is the matrix itself; average mode keeps two
+        float64 temporaries per block of time bins.  The distinct bins
+        (:attr:`n_distinct`) are computed and :func:`repeat_half_turn` copies them.
+        """
+        nd, nt, nn = self.shape
+        half = self.n_distinct
+        if half == nt and self.time_bins.n_sub == 1:
+            return self.block(out=out)
+        if self.time_bins.n_sub == 1:
+            # Not a walk over (t, n) blocks, which would need a temporary per block.
+            for d in range(nd):
+                self.block(d=(d, d + 1), t=(0, half), out=out[d : d + 1, :half])
+        else:
+            step = max(1, max_block_bytes // max(16 * nd * nn, 1))
+            for _, ((t0, t1), _), p in iter_blocks(self, block_grid((nd, half, nn), (step, nn))):
+                out[:, t0:t1, :] = p
+        return repeat_half_turn(out, half)
 
 
 def make_plan(spec: ResponseSpec) -> ResponsePlan:

@@ -2,7 +2,8 @@
 
 The in-memory operator itself, :class:`MaterialisedResponse`, lives with the other
 operators in :mod:`rotmod.response.operator` (:meth:`ResponseOperator.materialise` returns
-it) and is re-exported here.
+it) and is re-exported here.  The computation is
+:meth:`MatrixFreeResponse.materialise <rotmod.response.MatrixFreeResponse.materialise>`.
 """
 
 from __future__ import annotations
@@ -13,33 +14,11 @@ import numpy as np
 
 from rotmod.limits import check_memory
 from rotmod.profiles.base import ProfileModel
-from rotmod.response._plan import ResponsePlan, make_plan, repeat_half_turn
+from rotmod.response.matrix_free import MatrixFreeResponse
 from rotmod.response.operator import MaterialisedResponse
-from rotmod.response.parallel import block_grid, compute_blocks, iter_blocks
 from rotmod.response.spec import as_spec
 
 __all__ = ["MaterialisedResponse", "build_response"]
-
-
-def _fill(plan: ResponsePlan, out: np.ndarray, *, max_block_bytes: int = 64 << 20) -> None:
-    """Fill ``out = P`` from ``plan`` locally (numba threads inside each kernel call)."""
-    nd, nt, nn = plan.shape
-    half = plan.n_distinct
-    if half == nt and plan.time_bins.n_sub == 1:
-        plan.block(out=out)
-        return
-    if plan.time_bins.n_sub == 1:
-        # One detector at a time straight into ``out`` (out[d] is C-contiguous), so the
-        # only memory is the matrix itself: not a walk over (t, n) blocks, which would
-        # need a temporary per block.
-        for d in range(nd):
-            plan.block(d=(d, d + 1), t=(0, half), out=out[d : d + 1, :half])
-    else:
-        # Average mode keeps two float64 temporaries per block: bound them by time blocks.
-        step = max(1, max_block_bytes // max(16 * nd * nn, 1))
-        for _, ((t0, t1), _), p in iter_blocks(plan, block_grid((nd, half, nn), (step, nn))):
-            out[:, t0:t1, :] = p
-    repeat_half_turn(out, half)
 
 
 def build_response(
@@ -87,7 +66,7 @@ def build_response(
         Show a tqdm progress bar (distributed or blocked computations only).
     block_size : (int, int), optional
         ``(time bins, sky pixels)`` per block for the distributed path
-        (default: chosen for ~32 MB blocks).
+        (default: chosen for ~32 MB blocks); not used locally (no blocks are walked).
     distance : float or Quantity, optional
         Sources at this distance (cm) from the origin in the pixels' directions (a lab
         field; the ``exact`` model only); default at infinity.
@@ -98,22 +77,26 @@ def build_response(
 
     Raises
     ------
-    ParameterError, MaterialError, ModelValidityError
+    ParameterError, MaterialError, ModelValidityError, MemoryBudgetError
+
+    Notes
+    -----
+    This is ``MatrixFreeResponse(spec, ...).materialise()`` after a memory check: the one
+    way to compute a whole response, :meth:`ResponsePlan.fill` locally and the block walk
+    of :meth:`ResponseOperator.materialise` with ``scheduler``, ``client`` or
+    ``progress``; both give the same values bit for bit.
     """
     spec = as_spec(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors,
                    distance=distance, default_dtype=np.float32)
-    plan = make_plan(spec)
-    d, t, n = plan.shape
-    check_memory(float(d) * t * n * plan.dtype.itemsize,
+    local = scheduler is None and client is None and not progress
+    # The one way to compute a whole response: MatrixFreeResponse.materialise (ResponsePlan
+    # .fill locally, the block walk of ResponseOperator.materialise otherwise).  Locally no
+    # blocks are walked, so block_size is not used (nor checked) there, as always.
+    op = MatrixFreeResponse(spec, block_size=None if local else block_size,
+                            scheduler=scheduler, client=client, progress=progress)
+    d, t, n = spec.shape
+    check_memory(float(d) * t * n * spec.dtype.itemsize,
                  f"a response matrix of {d} detectors x {t} time bins x {n} pixels "
-                 f"({plan.dtype.name})",
+                 f"({spec.dtype.name})",
                  hint="use MatrixFreeResponse or write_response (blocks, on disk) instead")
-    out = np.empty(plan.shape, dtype=plan.dtype)
-    if scheduler is None and client is None and not progress:
-        _fill(plan, out)
-    else:
-        compute_blocks(
-            plan, out, scheduler=scheduler, client=client, progress=progress,
-            block_size=block_size,
-        )
-    return MaterialisedResponse(out, spec=spec)
+    return op.materialise()

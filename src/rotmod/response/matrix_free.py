@@ -8,8 +8,8 @@ import numpy as np
 
 from rotmod.profiles.base import ProfileModel
 from rotmod.response._plan import ResponsePlan, make_plan
-from rotmod.response.operator import BlockwiseResponse
-from rotmod.response.parallel import block_grid
+from rotmod.response.operator import BlockwiseResponse, MaterialisedResponse
+from rotmod.response.parallel import Block, block_grid, block_ranges
 from rotmod.response.spec import as_spec
 
 __all__ = ["MatrixFreeResponse"]
@@ -30,7 +30,8 @@ class MatrixFreeResponse(BlockwiseResponse):
         of the blocks and of the products; ``distance`` (cm) makes a lab field.
     block_size : (int, int), optional
         ``(time bins, sky pixels)`` per block (all detectors are in every block); default
-        as many whole-sky time bins as fit ~32 MB.
+        as many whole-sky time bins as fit ~32 MB.  Also the blocks of a distributed
+        :meth:`materialise`.
     scheduler, client : optional
         Evaluate the blocks on a Dask cluster (address or ``distributed.Client``); default
         local threads.
@@ -67,6 +68,7 @@ class MatrixFreeResponse(BlockwiseResponse):
                        detectors=detectors, distance=distance, default_dtype=np.float64)
         self.plan: ResponsePlan = make_plan(spec)
         self._adopt(spec)
+        self.block_size = block_size
         self.blocks = block_grid(
             (self.n_det, self.n_distinct, self.n_sky), block_size, itemsize=self.dtype.itemsize
         )
@@ -83,7 +85,27 @@ class MatrixFreeResponse(BlockwiseResponse):
         self, t: tuple[int, int] | None = None, n: tuple[int, int] | None = None
     ) -> np.ndarray:
         """``P[:, t0:t1, n0:n1]`` (``None`` = whole axis), evaluated now."""
+        t, n = block_ranges(t, n, self.n_time, self.n_sky)
         return self.plan.block(t=t, n=n)
+
+    def materialise(self) -> MaterialisedResponse:
+        """The whole matrix ``P`` in memory, with this operator's :attr:`spec`.
+
+        Locally (no ``scheduler``, ``client`` or ``progress``) :meth:`ResponsePlan.fill`
+        writes it straight into the result; otherwise the blocks of
+        :meth:`ResponseOperator.materialise` (``block_size``, default ~32 MB of float64)
+        run on the cluster (or locally, with a progress bar).  Either way every value is
+        the same kernel's: :func:`~rotmod.response.build_response` is this method.
+        """
+        if self.scheduler is None and self.client is None and not self.progress:
+            out = np.empty((self.n_det, self.n_time, self.n_sky), dtype=self.dtype)
+            return MaterialisedResponse(self.plan.fill(out), spec=self.spec)
+        return super().materialise()
+
+    def _materialise_blocks(self) -> list[Block]:
+        # ``block_size`` (or ~32 MB counted in float64, whatever the dtype) over the
+        # distinct bins.
+        return block_grid((self.n_det, self.n_distinct, self.n_sky), self.block_size)
 
     @property
     def _source(self) -> ResponsePlan:

@@ -18,13 +18,11 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 import rotmod
-from rotmod.binning import TimeBinning
 from rotmod.errors import ParameterError
-from rotmod.geometry import Instrument
-from rotmod.profiles.base import ProfileModel, get_model
+from rotmod.profiles.base import ProfileModel
 from rotmod.response._plan import fold_half_turn, repeat_half_turn
-from rotmod.response.parallel import Block, block_grid, iter_blocks
-from rotmod.response.spec import ResponseSpec, describe
+from rotmod.response.parallel import Block, block_grid, block_ranges, iter_blocks
+from rotmod.response.spec import ResponseSpec, check_field, describe
 
 if TYPE_CHECKING:
     from scipy.sparse.linalg import LinearOperator  # ~0.15 s, for scipy's solvers only
@@ -173,11 +171,13 @@ class ResponseOperator(ABC):
     ) -> np.ndarray:
         """``P[:, t0:t1, n0:n1]`` (``None`` = the whole axis), in :attr:`dtype`.
 
+        Every implementation checks the ranges the same way
+        (:func:`~rotmod.response.parallel.block_ranges`: integers, ``0 <= t0 < t1 <=
+        n_time``, ``0 <= n0 < n1 <= n_sky``; else :class:`~rotmod.errors.ParameterError`).
         The default computes the columns as products with unit sky vectors (one
         :meth:`forward` per pixel); operators that hold or evaluate ``P`` replace it.
         """
-        t0, t1 = (0, self.n_time) if t is None else t
-        n0, n1 = (0, self.n_sky) if n is None else n
+        (t0, t1), (n0, n1) = block_ranges(t, n, self.n_time, self.n_sky)
         out = np.empty((self.n_det, t1 - t0, n1 - n0), dtype=self.dtype)
         unit = np.zeros(self.n_sky)
         for k, pixel in enumerate(range(n0, n1)):
@@ -259,8 +259,12 @@ class MaterialisedResponse(ResponseOperator):
     spec : ResponseSpec, optional
         What the matrix was computed for (its shape and dtype must be the spec's).
     instrument, grid, time_bins, model, energy, distance : optional
-        Without a spec, what is known of it (metadata only; see
-        :meth:`ResponseOperator.metadata`).  ``model`` may be a registry name or instance;
+        Without a spec, what is known of it.  With ``instrument``, ``grid``, ``time_bins``
+        and ``model`` (``energy`` and ``distance`` optional) they make the :attr:`spec`
+        (of the matrix's dtype); otherwise they are loose metadata (see
+        :meth:`ResponseOperator.metadata`) and :attr:`spec` is ``None``.  Each is checked
+        by the spec's own validator (:func:`~rotmod.response.spec.check_field`) and
+        against the matrix's sizes.  ``model`` may be a registry name or instance;
         ``distance`` (cm) of a lab field's sources.
 
     Raises
@@ -303,10 +307,19 @@ class MaterialisedResponse(ResponseOperator):
                                      f"{spec.dtype}, got {m.shape} {m.dtype}")
             self._adopt(spec)
             return
+        # Each field is checked by the spec's own validator (check_field), then against the
+        # matrix's sizes; with every field a spec needs, the matrix adopts a spec.
+        given = {"instrument": instrument, "grid": grid, "time_bins": time_bins,
+                 "model": model, "energy": energy, "distance": distance}
+        fields = {k: check_field(k, v) for k, v in given.items() if v is not None}
+        _check_sizes(m.shape, fields)
+        if all(k in fields for k in ("instrument", "grid", "time_bins", "model")):
+            self._adopt(ResponseSpec(**fields, dtype=m.dtype))
+            return
         self.n_det, self.n_time, self.n_sky = (int(v) for v in m.shape)
         self.dtype = m.dtype
-        _set_metadata(self, instrument, grid, time_bins, model, energy)
-        self.distance = None if distance is None else float(distance)
+        for k, v in fields.items():
+            setattr(self, k, v)
 
     @property
     def _flat(self) -> np.ndarray:
@@ -338,8 +351,7 @@ class MaterialisedResponse(ResponseOperator):
         self, t: tuple[int, int] | None = None, n: tuple[int, int] | None = None
     ) -> np.ndarray:
         """``P[:, t0:t1, n0:n1]`` (a view of :attr:`matrix`; ``None`` = whole axis)."""
-        t0, t1 = (0, self.n_time) if t is None else t
-        n0, n1 = (0, self.n_sky) if n is None else n
+        (t0, t1), (n0, n1) = block_ranges(t, n, self.n_time, self.n_sky)
         return self.matrix[:, t0:t1, n0:n1]
 
     def materialise(self) -> MaterialisedResponse:
@@ -347,39 +359,18 @@ class MaterialisedResponse(ResponseOperator):
         return self
 
 
-def _set_metadata(
-    op: ResponseOperator,
-    instrument: Any,
-    grid: Any,
-    time_bins: Any,
-    model: Any,
-    energy: Any,
-) -> None:
-    """Check the shapes implied by the metadata against the operator and attach it."""
-    if instrument is not None:
-        if not isinstance(instrument, Instrument):
-            raise ParameterError(
-                f"instrument must be an Instrument, got {type(instrument).__name__}"
-            )
-        if len(instrument.detectors) != op.n_det:
-            raise ParameterError(
-                f"instrument has {len(instrument.detectors)} detectors but the response has "
-                f"n_det = {op.n_det}"
-            )
-    if grid is not None and int(grid.size) != op.n_sky:
-        raise ParameterError(f"grid has {grid.size} pixels but the response has n_sky = {op.n_sky}")
-    if time_bins is not None:
-        time_bins = TimeBinning.coerce(time_bins)
-        if time_bins.n_bins != op.n_time:
-            raise ParameterError(
-                f"time_bins has {time_bins.n_bins} bins but the response has "
-                f"n_time = {op.n_time}"
-            )
-    op.instrument = instrument
-    op.grid = grid
-    op.time_bins = time_bins
-    op.model = None if model is None else get_model(model)
-    op.energy = None if energy is None else float(energy)
+def _check_sizes(shape: tuple[int, ...], fields: dict[str, Any]) -> None:
+    """Refuse metadata whose sizes are not those of a matrix of ``shape``."""
+    n_det, n_time, n_sky = (int(v) for v in shape)
+    inst, grid, tb = fields.get("instrument"), fields.get("grid"), fields.get("time_bins")
+    if inst is not None and len(inst.detectors) != n_det:
+        raise ParameterError(f"instrument has {len(inst.detectors)} detectors but the "
+                             f"response has n_det = {n_det}")
+    if grid is not None and int(grid.size) != n_sky:
+        raise ParameterError(f"grid has {grid.size} pixels but the response has n_sky = {n_sky}")
+    if tb is not None and tb.n_bins != n_time:
+        raise ParameterError(f"time_bins has {tb.n_bins} bins but the response has "
+                             f"n_time = {n_time}")
 
 
 def _products(

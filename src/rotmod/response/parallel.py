@@ -21,9 +21,8 @@ import numpy as np
 
 from rotmod._deps import optional_import
 from rotmod.errors import ParameterError
-from rotmod.response._plan import repeat_half_turn
 
-__all__ = ["block_grid", "compute_blocks", "get_client", "iter_blocks", "map_blocks"]
+__all__ = ["block_grid", "block_ranges", "get_client", "iter_blocks", "map_blocks"]
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +78,37 @@ def block_grid(
         for t0 in range(0, nt, bt)
         for n0 in range(0, nn, bn)
     ]
+
+
+def _axis_range(name: str, value: Any, size: int, size_name: str) -> tuple[int, int]:
+    """``(start, stop)`` of a block along one axis (``None``: the whole axis)."""
+    if value is None:
+        return (0, size)
+    try:
+        a, b = value
+    except (TypeError, ValueError):
+        a = b = None
+    if not all(isinstance(v, int | np.integer) and not isinstance(v, bool) for v in (a, b)):
+        raise ParameterError(f"{name} must be a pair of integers ({name}0, {name}1) with "
+                             f"0 <= {name}0 < {name}1 <= {size_name} = {size}, got {value!r}")
+    a, b = int(a), int(b)
+    if not 0 <= a < b <= size:
+        raise ParameterError(f"{name} must satisfy 0 <= {name}0 < {name}1 <= {size_name} = "
+                             f"{size}, got {value!r}")
+    return (a, b)
+
+
+def block_ranges(t: Any, n: Any, n_time: int, n_sky: int) -> Block:
+    """The block ``((t0, t1), (n0, n1))`` that ``t`` and ``n`` ask for: the one check of
+    every ``block(t=, n=)`` (``None``: the whole axis).
+
+    Raises
+    ------
+    ParameterError
+        Naming ``t`` or ``n``, the value and the rule: two integers with
+        ``0 <= t0 < t1 <= n_time`` and ``0 <= n0 < n1 <= n_sky`` (a non-empty range).
+    """
+    return (_axis_range("t", t, n_time, "n_time"), _axis_range("n", n, n_sky, "n_sky"))
 
 
 @contextlib.contextmanager
@@ -199,33 +229,3 @@ def iter_blocks(
     for i, res in map_blocks(func, blocks, source, *args, scheduler=scheduler, client=client,
                              progress=progress, desc=desc):
         yield i, blocks[i], res
-
-
-def compute_blocks(
-    plan: Any,
-    out: np.ndarray,
-    *,
-    scheduler: str | None = None,
-    client: Any = None,
-    progress: bool = False,
-    block_size: tuple[int, int] | None = None,
-) -> np.ndarray:
-    """Fill ``out[d, t, n]`` with the response of ``plan`` block by block.
-
-    Parameters
-    ----------
-    plan : ResponsePlan
-    out : ndarray
-        Array of ``plan.shape`` (any array-like supporting slice reads and assignment: the
-        repeated half turn of bins is copied within ``out``).
-    scheduler, client, progress, block_size
-        See :func:`map_blocks` and :func:`block_grid`.
-    """
-    nd, _, nn = plan.shape
-    half = plan.n_distinct  # the remaining bins repeat these (ResponsePlan.n_distinct)
-    blocks = block_grid((nd, half, nn), block_size)
-    for _, ((t0, t1), (n0, n1)), res in iter_blocks(
-        plan, blocks, scheduler=scheduler, client=client, progress=progress
-    ):
-        out[:, t0:t1, n0:n1] = res
-    return repeat_half_turn(out, half)

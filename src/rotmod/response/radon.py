@@ -51,7 +51,7 @@ from rotmod.profiles.base import ProjectedGeometry
 from rotmod.response._plan import distinct_bins, fold_half_turn, repeat_half_turn
 from rotmod.response.materialised import MaterialisedResponse
 from rotmod.response.operator import ResponseOperator
-from rotmod.response.parallel import map_blocks
+from rotmod.response.parallel import block_ranges, map_blocks
 from rotmod.response.spec import ResponseSpec, as_spec, restore_fields
 from rotmod.response.stored import STORE_KINDS, StoreKind
 
@@ -677,8 +677,7 @@ class RadonResponse(ResponseOperator):
         self, t: tuple[int, int] | None = None, n: tuple[int, int] | None = None
     ) -> np.ndarray:
         """``P[:, t0:t1, n0:n1]``: :meth:`columns` of those pixels (``None`` = whole axis)."""
-        t0, t1 = (0, self.n_time) if t is None else t
-        n0, n1 = (0, self.n_sky) if n is None else n
+        (t0, t1), (n0, n1) = block_ranges(t, n, self.n_time, self.n_sky)
         return self.columns(np.arange(n0, n1))[:, t0:t1]
 
     def materialise(self) -> MaterialisedResponse:

@@ -24,19 +24,68 @@ from rotmod.geometry import Instrument
 from rotmod.profiles.base import DEFAULT_MODEL, MODELS, ProfileModel, get_model
 from rotmod.sky.geometry import SkyGeometry, grid_from_dict
 
-__all__ = ["ResponseSpec", "as_spec", "check_response_matches", "describe", "restore_fields"]
+__all__ = [
+    "ResponseSpec",
+    "as_spec",
+    "check_field",
+    "check_response_matches",
+    "describe",
+    "restore_fields",
+]
 
 #: The fields of a spec, in the order they are described and compared (the first differing
 #: one is named).
 FIELDS = ("instrument", "grid", "time_bins", "model", "energy", "dtype", "shape", "distance")
 
 
-def _check_grid(grid: Any) -> None:
+def _check_grid(grid: Any) -> Any:
     if not isinstance(grid, SkyGeometry):
         raise ParameterError(
             f"grid must be a sky grid (a rotmod.sky.SkyGeometry: SkyGrid, CelestialGrid, "
             f"HealpixGrid, ...), got {type(grid).__name__}"
         )
+    return grid
+
+
+def _check_instrument(instrument: Any) -> Instrument:
+    if not isinstance(instrument, Instrument):
+        raise ParameterError(f"instrument must be an Instrument, got {type(instrument).__name__}")
+    return instrument
+
+
+def _as_distance_field(distance: Any) -> float | None:
+    d = as_distance(distance, 1)
+    return None if np.isinf(d[0]) else float(d[0])
+
+
+#: The one validator of each field of a spec (the value as the spec stores it, or
+#: ParameterError naming the field, the value and the rule).
+_CHECKS: dict[str, Callable[[Any], Any]] = {
+    "instrument": _check_instrument,
+    "grid": _check_grid,
+    "time_bins": TimeBinning.coerce,
+    "dtype": as_float_dtype,
+    "energy": lambda e: as_energy_scalar(e, "energy"),
+    "model": get_model,
+    "distance": _as_distance_field,
+}
+
+
+def check_field(name: str, value: Any) -> Any:
+    """Validate one field of a :class:`ResponseSpec` (``instrument``, ``grid``,
+    ``time_bins``, ``dtype``, ``energy``, ``model``, ``distance``) and return it as a spec
+    stores it; ``energy`` and ``distance`` may be ``None`` (``None`` returned).  The one
+    check of each field, for the spec and for the partial metadata of a matrix from
+    elsewhere (:class:`~rotmod.response.MaterialisedResponse`).
+
+    Raises
+    ------
+    ParameterError
+        Naming the field, the value and the rule.
+    """
+    if value is None and name in ("energy", "distance"):
+        return None
+    return _CHECKS[name](value)
 
 
 def _select_detectors(instrument: Instrument, detectors: Any) -> Instrument:
@@ -107,22 +156,14 @@ class ResponseSpec:
     def __post_init__(self, detectors: Any) -> None:
         # The order of the checks (and their messages) is that of the operators before the
         # spec existed: a call with several bad inputs names the same one.
-        instrument = self.instrument
-        if not isinstance(instrument, Instrument):
-            raise ParameterError(
-                f"instrument must be an Instrument, got {type(instrument).__name__}"
-            )
-        _check_grid(self.grid)
-        tb = TimeBinning.coerce(self.time_bins)
-        dt = as_float_dtype(self.dtype)
-        inst = _select_detectors(instrument, detectors)
-        e = self.energy
-        e = None if e is None else as_energy_scalar(e, "energy")
-        mdl = get_model(self.model)
-        dist = None
-        if self.distance is not None:
-            d = as_distance(self.distance, 1)
-            dist = None if np.isinf(d[0]) else float(d[0])
+        inst = check_field("instrument", self.instrument)
+        check_field("grid", self.grid)
+        tb = check_field("time_bins", self.time_bins)
+        dt = check_field("dtype", self.dtype)
+        inst = _select_detectors(inst, detectors)
+        e = check_field("energy", self.energy)
+        mdl = check_field("model", self.model)
+        dist = check_field("distance", self.distance)
         for name, value in (("instrument", inst), ("time_bins", tb), ("dtype", dt),
                             ("energy", e), ("model", mdl), ("distance", dist)):
             object.__setattr__(self, name, value)

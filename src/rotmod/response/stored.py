@@ -26,7 +26,7 @@ from rotmod.io.atomic import check_overwrite
 from rotmod.registry import Registry
 from rotmod.response.materialised import MaterialisedResponse
 from rotmod.response.operator import BlockwiseResponse, ResponseOperator
-from rotmod.response.parallel import Block, block_grid, iter_blocks
+from rotmod.response.parallel import Block, block_grid, block_ranges, iter_blocks
 from rotmod.response.spec import ResponseSpec, check_response_matches, restore_fields
 
 __all__ = [
@@ -121,8 +121,7 @@ class StoredResponse(BlockwiseResponse):
     ) -> np.ndarray:
         """``P[:, t0:t1, n0:n1]`` read from the store and checked
         (:func:`rotmod.io.response_store.read_checked`)."""
-        t0, t1 = (0, self.n_time) if t is None else t
-        n0, n1 = (0, self.n_sky) if n is None else n
+        (t0, t1), (n0, n1) = block_ranges(t, n, self.n_time, self.n_sky)
         return fmt.read_checked(self.array, slice(t0, t1), slice(n0, n1), self.path,
                                 self.meta.get("p_max", 1.0))
 

@@ -6,9 +6,7 @@ import distributed
 import numpy as np
 import pytest
 
-from rotmod import DetectorArray, Instrument
 from rotmod.errors import ParameterError
-from rotmod.materials import PAPER_SIGMA_662
 from rotmod.response import MatrixFreeResponse, RadonResponse, build_response, write_response
 from rotmod.response.parallel import get_client
 from rotmod.sky import SkyGrid
@@ -26,10 +24,8 @@ def cluster():
         yield lc, client
 
 
-def test_distributed_equals_local(cluster, tmp_path):
+def test_distributed_equals_local(cluster, tmp_path, inst):
     lc, client = cluster
-    mask = Instrument.paper(sigma=PAPER_SIGMA_662).mask
-    inst = Instrument(mask, DetectorArray.hexagonal(3.8, rings=1))
     grid = SkyGrid((8, 8), 1.0)
     local = build_response(inst, grid, 30, block_size=(7, 25), progress=False)
     dist = build_response(inst, grid, 30, client=client, block_size=(7, 25))
@@ -52,10 +48,8 @@ def test_distributed_equals_local(cluster, tmp_path):
     np.testing.assert_array_equal(stored.materialise().matrix, local.matrix)
 
 
-def test_radon_distributed_equals_local(cluster):
+def test_radon_distributed_equals_local(cluster, inst):
     _, client = cluster
-    mask = Instrument.paper(sigma=PAPER_SIGMA_662).mask
-    inst = Instrument(mask, DetectorArray.hexagonal(3.8, rings=1))
     grid = SkyGrid((9, 8), 0.8)
     local = RadonResponse(inst, grid, 40, dtype=np.float64, block_bins=6)
     dist = RadonResponse(inst, grid, 40, dtype=np.float64, block_bins=6, client=client)

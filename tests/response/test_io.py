@@ -23,12 +23,6 @@ from rotmod.sky import SkyGrid
 
 
 @pytest.fixture(scope="module")
-def inst():
-    base = Instrument.paper(sigma=PAPER_SIGMA_662)
-    return Instrument(base.mask, DetectorArray.hexagonal(3.8, rings=1))
-
-
-@pytest.fixture(scope="module")
 def grid():
     return SkyGrid((6, 7), 1.0)
 

@@ -29,13 +29,6 @@ from tests.conftest import rad
 
 
 @pytest.fixture(scope="module")
-def inst():
-    """The paper's lead mask over a 7-detector hexagonal array (c = 3.8 cm < a = 4 cm)."""
-    base = Instrument.paper(sigma=PAPER_SIGMA_662)
-    return Instrument(base.mask, DetectorArray.hexagonal(3.8, rings=1))
-
-
-@pytest.fixture(scope="module")
 def grid():
     return SkyGrid((9, 8), 1.0)
 

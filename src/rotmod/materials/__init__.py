@@ -1,18 +1,24 @@
 """Slat materials and their photon attenuation.
 
-Mass attenuation coefficients come from the NIST XCOM photon cross-section tables as shipped
-(and maintained) by the `fisx <https://pypi.org/project/fisx/>`_ package: total attenuation
-*with* coherent scattering, elements and chemical formulas (mixture rule by mass fraction),
-tabulated from 1 keV to 100 GeV.  Energies outside that range are refused, because the
-library would extrapolate silently.  Default element densities are fisx's (except tin, see
-``_DENSITY_OVERRIDES``); compounds need an explicit density.
+Mass attenuation coefficients come from the NIST XCOM photon cross-section tables (public-domain
+data) as distributed by the `fisx <https://pypi.org/project/fisx/>`_ package (version 1.3.2,
+MIT-licensed): total attenuation *with* coherent scattering, elements H to Fm (Z = 1-100) and
+chemical formulas (mixture rule by mass fraction), tabulated from 1 keV to 100 GeV.  Energies
+outside that range are refused, because interpolation would silently become extrapolation.
 
-We read fisx's XCOM table file and interpolate it ourselves rather than calling fisx's
-interpolator: fisx interpolates the pair-production cross-section log-log from its zero at the
-1022 keV threshold, which puts lead at 1.05 cm^2/g at 1022.5 keV (XCOM: 0.070).  Here each
-partial cross-section is interpolated log-log between positive table values and linearly in
-energy where one end is zero (the pair threshold), and summed; fisx still parses formulas into
-mass fractions.
+rotmod ships the tables it uses, with fisx's element data (atomic masses, default densities),
+as package data, ``xcom.npz`` (270 KiB), made from fisx 1.3.2 by ``scripts/extract_xcom.py``
+(the file's ``provenance`` entry says how and when): fisx is a C++ extension published only as
+source, and installing rotmod should need no compiler.  Default element densities are fisx's
+(except tin, see ``_DENSITY_OVERRIDES``); compounds need an explicit density.
+
+We interpolate the tables ourselves rather than with fisx's interpolator: fisx interpolates the
+pair-production cross-section log-log from its zero at the 1022 keV threshold, which puts lead
+at 1.05 cm^2/g at 1022.5 keV (XCOM: 0.070).  Here each partial cross-section is interpolated
+log-log between positive table values and linearly in energy where one end is zero (the pair
+threshold), and summed.  Formulas become mass fractions as fisx made them (atoms times atomic
+mass, over the sum in alphabetical order of symbols), so coefficients are those rotmod computed
+with fisx, to the bit.
 
 A material can also carry an explicit mass attenuation coefficient, and a mask an explicit
 linear coefficient, which override the database (the seed paper's scenarios use
@@ -22,8 +28,8 @@ linear coefficient, which override the database (the seed paper's scenarios use
 from __future__ import annotations
 
 import functools
+import importlib.resources
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import astropy.units as u
@@ -31,6 +37,7 @@ import numpy as np
 
 from rotmod._validate import as_energy, as_energy_scalar, as_scalar
 from rotmod.errors import MaterialError, ParameterError
+from rotmod.materials._formula import atom_counts
 
 __all__ = ["DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "Material", "mass_attenuation"]
 
@@ -40,7 +47,7 @@ __all__ = ["DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "Material", "mass_attenuatio
 #: ``mass_attenuation = "0.103 cm2/g"`` in a file) to reproduce the paper's figures.
 PAPER_SIGMA_662 = 0.103
 
-#: Energy range (keV) of the XCOM tables shipped with fisx.
+#: Energy range (keV) of the XCOM tables (rows below 1 keV exist but are not offered).
 DATABASE_RANGE_KEV = (1.0, 1.0e8)
 
 #: Common names accepted besides element symbols and chemical formulas.
@@ -63,39 +70,67 @@ _ALIASES = {
 #: 5.31 (grey alpha-tin); metallic white tin is 7.31.
 _DENSITY_OVERRIDES = {"Sn": 7.31}
 
+#: The package data file: XCOM tables and element data (see ``scripts/extract_xcom.py``).
+_DATA_FILE = "xcom.npz"
+
+
+@dataclass(frozen=True)
+class _Element:
+    """One element of the database: atomic number, atomic mass (g/mol), fisx's default density
+    (g/cm^3) and the XCOM table (columns energy in keV, then the coherent, incoherent,
+    photoelectric and pair cross-sections in cm^2/g; rows in increasing energy, an absorption
+    edge being a repeated energy)."""
+
+    z: int
+    atomic_mass: float
+    density: float
+    table: np.ndarray
+
 
 @functools.cache
-def _database() -> Any:
-    """The fisx element database, built once (about a second)."""
-    from fisx import Elements
+def _database() -> dict[str, _Element]:
+    """Element symbol -> :class:`_Element`, read once from the package data."""
+    with importlib.resources.files(__name__).joinpath(_DATA_FILE).open("rb") as f:
+        data = np.load(f, allow_pickle=False)
+        table, offset = data["table"], data["offset"]
+        return {
+            str(s): _Element(int(z), float(m), float(rho), table[offset[k]:offset[k + 1]])
+            for k, (s, z, m, rho) in enumerate(
+                zip(data["symbol"], data["z"], data["atomic_mass"], data["density"], strict=True)
+            )
+        }
 
-    db = Elements()
-    db.initializeAsPyMca()
-    return db
 
+def _composition(name: str) -> dict[str, float]:
+    """Mass fractions of the elements of formula ``name``, keyed in alphabetical order.
 
-@functools.cache
-def _xcom_tables() -> dict[str, np.ndarray]:
-    """Per element, the XCOM table: columns energy (keV) and the four partial cross-sections
-    (coherent, incoherent, photoelectric, pair; cm^2/g), rows in increasing energy."""
-    from fisx import DataDir
+    Computed as fisx computed them, so that coefficients stay identical to the bit: atoms
+    times atomic mass per element, summed in alphabetical order, each divided by the sum.
+    (A plain loop, not ``sum``: Python 3.12's ``sum`` of floats is compensated.)
 
-    path = Path(DataDir.FISX_DATA_DIR) / "XCOM_CrossSections.dat"
-    tables: dict[str, np.ndarray] = {}
-    symbol, rows = None, []
-    for line in path.read_text().splitlines():
-        if line.startswith("#S"):
-            symbol, rows = line.split()[2], []
-            tables[symbol] = rows  # type: ignore[assignment]
-        elif symbol is not None and line and not line.startswith("#"):
-            rows.append([float(v) for v in line.split()])
-    # columns: E, coherent, incoherent, coh+incoh, photo, pair, total
-    return {k: np.asarray(v)[:, [0, 1, 2, 4, 5]] for k, v in tables.items()}
+    Raises
+    ------
+    MaterialError
+        Not a formula, or a symbol that is not an element of the database; the message
+        says which (the caller names the material).
+    """
+    db = _database()
+    counts = atom_counts(name)
+    unknown = [s for s in counts if s not in db]
+    if unknown:
+        raise MaterialError(
+            f"unknown element symbol {unknown[0]!r}; the database covers H to Fm (Z = 1-100)"
+        )
+    masses = {s: counts[s] * db[s].atomic_mass for s in sorted(counts)}
+    total = 0.0
+    for m in masses.values():
+        total += m
+    return {s: m / total for s, m in masses.items()}
 
 
 def _element_attenuation(symbol: str, e: np.ndarray) -> np.ndarray:
     """Total mass attenuation of one element at energies ``e`` (keV, 1-D)."""
-    table = _xcom_tables()[symbol]
+    table = _database()[symbol].table
     grid = table[:, 0]
     # Last row with E <= e, so at an absorption edge (a repeated energy) the value above the
     # edge is used; the final row is folded into the last interval.
@@ -145,18 +180,12 @@ def mass_attenuation(formula: str, energy: Any) -> np.ndarray:
             f"energy must lie within the attenuation database's range {lo:g} keV to "
             f"{hi:g} keV (NIST XCOM via fisx), got {bad:g} keV"
         )
-    name = _formula(formula)
     try:
-        composition = _database().getComposition(name)
-    except ValueError as exc:
-        composition = {}
-        reason = f" ({exc})"
-    else:
-        reason = ""
-    if not composition:
+        composition = _composition(_formula(formula))
+    except MaterialError as exc:
         raise MaterialError(
-            f"material {formula!r} is not an element, known name or chemical formula{reason}"
-        )
+            f"material {formula!r} is not an element, known name or chemical formula ({exc})"
+        ) from None
     flat = np.ravel(e).astype(float)
     sigma = sum(w * _element_attenuation(el, flat) for el, w in composition.items())
     return np.asarray(sigma).reshape(e.shape)
@@ -191,13 +220,13 @@ class Material:
             raise MaterialError(f"material.name must be a non-empty string, got {self.name!r}")
         formula = _formula(self.name)
         if self.density is None:
-            try:
-                rho = _DENSITY_OVERRIDES.get(formula) or float(_database().getDensity(formula))
-            except ValueError as exc:
+            element = _database().get(formula)
+            if element is None:
                 raise MaterialError(
                     f"material {self.name!r}: no default density (only elements have one); "
                     "give material.density in g/cm3"
-                ) from exc
+                )
+            rho = _DENSITY_OVERRIDES.get(formula, element.density)
         else:
             rho = as_scalar(self.density, "material.density", u.g / u.cm**3, lo=0, lo_open=True)
         object.__setattr__(self, "density", rho)

@@ -1,6 +1,11 @@
-"""Attenuation data (NIST XCOM via fisx): values, range and errors."""
+"""Attenuation data (NIST XCOM, shipped as package data from fisx): values, range and errors."""
 
 from __future__ import annotations
+
+import importlib.resources
+import importlib.util
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,6 +13,7 @@ import pytest
 from rotmod.errors import MaterialError, ParameterError
 from rotmod.geometry import Mask
 from rotmod.materials import DATABASE_RANGE_KEV, Material, mass_attenuation
+from rotmod.materials._formula import atom_counts
 
 # NIST XCOM total attenuation with coherent scattering (cm2/g), from the XCOM web tables.
 # fisx interpolates the same tables log-log, so agreement to 1% is expected away from
@@ -109,3 +115,135 @@ def test_bad_material_inputs(call, exc, match):
 def test_database_range_is_documented():
     assert DATABASE_RANGE_KEV == (1.0, 1.0e8)
     mass_attenuation("Pb", [1.0, 1.0e8])  # both ends accepted
+
+
+# Coefficients rotmod computed when it read fisx at run time (fisx 1.3.2, rotmod before the
+# tables became package data), printed with repr: the shipped data, the formula parser and the
+# mixture rule must reproduce them to the bit.  Energies: L-shell region, just above the Pb K
+# edge, 662 keV, just above the pair threshold, 100 MeV.
+_PINNED_E = [30.0, 88.01, 662.0, 1022.5, 1e5]
+PINNED = {
+    "PbWO4": [23.040916453870324, 5.996222336368318, 0.10052140700976434,
+              0.06678838776043268, 0.08045410032095512],
+    "Bi4Ge3O12": [23.628435538020664, 1.4911111177333547, 0.09980632096966076,
+                  0.06701958234365692, 0.07453720851361394],
+    "CdZnTe": [19.733338681358262, 1.9801144471861047, 0.07454829181077635,
+               0.05710063200406523, 0.06303965531383418],
+    "Cd0.9Zn0.1Te": [20.79464263226338, 2.3019616414552386, 0.07484455354836822,
+                     0.056674892845574816, 0.06658889590295461],
+    "Ca(OH)2": [2.3794658893185057, 0.2462008762657321, 0.07964057389209331,
+                0.06479547447752175, 0.02815368494537525],
+    "NaI": [7.35773874531543, 2.328323874920924, 0.07661875854482786, 0.05799064076632435,
+            0.06296917743813497],
+    "CsI": [9.04538527191902, 2.84960242072259, 0.07753456549334281, 0.057643054978757026,
+            0.07116227242755521],
+    "Mg(NO3)2": [0.4550248982849746, 0.1646475751405145, 0.07710746250057485,
+                 0.0628888388999814, 0.018651674336716016],
+}
+
+
+@pytest.mark.parametrize("formula", sorted(PINNED))
+def test_coefficients_identical_to_the_fisx_based_ones(formula):
+    assert np.array_equal(mass_attenuation(formula, _PINNED_E), PINNED[formula])
+
+
+def test_default_densities_and_lead_mu_unchanged():
+    assert [Material(x).density for x in ("Pb", "W", "Sn")] == [11.34, 19.3, 7.31]
+    assert Material("lead").linear_attenuation(662.0) == 1.249051385139087
+
+
+@pytest.mark.parametrize(
+    ("formula", "counts"),
+    [
+        ("Pb", {"Pb": 1.0}),
+        ("Bi4Ge3O12", {"Bi": 4.0, "Ge": 3.0, "O": 12.0}),
+        ("Cd0.9Zn0.1Te", {"Cd": 0.9, "Zn": 0.1, "Te": 1.0}),
+        ("Ca(OH)2", {"Ca": 1.0, "O": 2.0, "H": 2.0}),
+        ("Fe2(SO4)3", {"Fe": 2.0, "S": 3.0, "O": 12.0}),
+        ("CH3CH2OH", {"C": 2.0, "H": 6.0, "O": 1.0}),
+        ("((CH2)2O)3", {"C": 6.0, "H": 12.0, "O": 3.0}),
+        ("Pb.5", {"Pb": 0.5}),
+        ("PB", {"P": 1.0, "B": 1.0}),  # symbols are case-sensitive: phosphorus boride
+    ],
+)
+def test_formula_atom_counts(formula, counts):
+    assert atom_counts(formula) == counts
+
+
+@pytest.mark.parametrize(
+    ("formula", "match"),
+    [
+        ("Pb(", r"'\(' without a matching '\)'"),
+        ("Pb)2", r"'\)' without a matching '\('"),
+        ("Pb()", r"empty parentheses"),
+        ("2Pb", "count '2' follows no element or group"),
+        ("Pb0", "count '0' must be > 0"),
+        ("Pb-1", "unexpected character '-' at position 2"),
+        ("Pb W", "unexpected character ' ' at position 2"),
+        ("pb", "unexpected character 'p' at position 0"),
+        ("", "empty formula"),
+    ],
+)
+def test_formula_errors_say_what_is_wrong(formula, match):
+    with pytest.raises(MaterialError, match=match):
+        atom_counts(formula)
+
+
+@pytest.mark.parametrize(
+    ("name", "match"),
+    [
+        ("PbXx4", r"'PbXx4' is not an element.*unknown element symbol 'Xx'"),
+        # Mendelevium is an element, but XCOM stops at fermium (Z = 100).
+        ("Md", r"unknown element symbol 'Md'; the database covers H to Fm"),
+        ("Pb(WO4", r"'Pb\(WO4' is not an element.*without a matching"),
+    ],
+)
+def test_unknown_symbols_and_bad_formulas_are_named(name, match):
+    with pytest.raises(MaterialError, match=match):
+        mass_attenuation(name, 100.0)
+    with pytest.raises(MaterialError, match=match):
+        Material(name, density=1.0)
+    with pytest.raises(MaterialError, match=match):  # not "give a density"
+        Material(name)
+
+
+def _shipped() -> dict[str, np.ndarray]:
+    with importlib.resources.files("rotmod.materials").joinpath("xcom.npz").open("rb") as f:
+        with np.load(f, allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+
+
+def test_shipped_data_and_provenance():
+    data = _shipped()
+    meta = json.loads(str(data["provenance"]))
+    assert "NIST XCOM" in meta["source"]
+    assert meta["fisx_version"] == "1.3.2"
+    assert meta["script"] == "scripts/extract_xcom.py"
+    assert list(data["z"]) == list(range(1, 101))
+    assert data["symbol"][0] == "H" and data["symbol"][81] == "Pb" and data["symbol"][-1] == "Fm"
+    table, offset = data["table"], data["offset"]
+    assert table.shape == (offset[-1], 5) and table.dtype == np.float64
+    for k in range(len(offset) - 1):
+        e = table[offset[k]:offset[k + 1], 0]
+        # increasing energy, a repeated energy being an absorption edge; 1 keV-100 GeV covered
+        assert np.all(np.diff(e) >= 0) and e[0] <= 1.0 and e[-1] >= 1.0e8
+    assert np.all(table[:, 1:] >= 0)
+
+
+def test_shipped_data_is_what_the_script_extracts():
+    # Regenerating the file from the installed fisx (when there is one) must give it back.
+    pytest.importorskip("fisx")
+    path = Path(__file__).resolve().parents[2] / "scripts" / "extract_xcom.py"
+    spec = importlib.util.spec_from_file_location("extract_xcom", path)
+    assert spec is not None and spec.loader is not None
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    fresh, shipped = script.extract(), _shipped()
+    assert sorted(fresh) == sorted(shipped)
+    for key in fresh:
+        if key == "provenance":
+            a, b = json.loads(str(fresh[key])), json.loads(str(shipped[key]))
+            assert {**a, "created": None} == {**b, "created": None}
+        else:
+            assert fresh[key].dtype == shipped[key].dtype
+            assert np.array_equal(fresh[key], shipped[key]), key

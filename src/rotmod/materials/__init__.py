@@ -119,7 +119,7 @@ def _composition(name: str) -> dict[str, float]:
     unknown = [s for s in counts if s not in db]
     if unknown:
         raise MaterialError(
-            f"unknown element symbol {unknown[0]!r}; the database covers H to Fm (Z = 1-100)"
+            f"unknown element symbol {unknown[0]!r}; the database covers H to Fm, Z = 1 to 100"
         )
     masses = {s: counts[s] * db[s].atomic_mass for s in sorted(counts)}
     total = 0.0
@@ -222,6 +222,9 @@ class Material:
         if self.density is None:
             element = _database().get(formula)
             if element is None:
+                if self.mass_attenuation is None:
+                    # A name that is no material at all: say so, rather than ask for a density.
+                    mass_attenuation(formula, 100.0)
                 raise MaterialError(
                     f"material {self.name!r}: no default density (only elements have one); "
                     "give material.density in g/cm3"

@@ -7,7 +7,7 @@ chemical formulas (mixture rule by mass fraction), tabulated from 1 keV to 100 G
 outside that range are refused, because interpolation would silently become extrapolation.
 
 rotmod ships the tables it uses, with fisx's element data (atomic masses, default densities),
-as package data, ``xcom.npz`` (270 KiB), made from fisx 1.3.2 by ``scripts/extract_xcom.py``
+as package data, ``xcom.npz`` (269 KiB), made from fisx 1.3.2 by ``scripts/extract_xcom.py``
 (the file's ``provenance`` entry says how and when): fisx is a C++ extension published only as
 source, and installing rotmod should need no compiler.  Default element densities are fisx's
 (except tin, see ``_DENSITY_OVERRIDES``); compounds need an explicit density.

@@ -12,7 +12,12 @@ import pytest
 
 from rotmod.errors import MaterialError, ParameterError
 from rotmod.geometry import Mask
-from rotmod.materials import DATABASE_RANGE_KEV, Material, mass_attenuation
+from rotmod.materials import (
+    DATABASE_RANGE_KEV,
+    Material,
+    database_provenance,
+    mass_attenuation,
+)
 from rotmod.materials._formula import atom_counts
 
 # NIST XCOM total attenuation with coherent scattering (cm2/g), from the XCOM web tables.
@@ -219,6 +224,7 @@ def test_shipped_data_and_provenance():
     assert "NIST XCOM" in meta["source"]
     assert meta["fisx_version"] == "1.3.2"
     assert meta["script"] == "scripts/extract_xcom.py"
+    assert database_provenance() == meta
     assert list(data["z"]) == list(range(1, 101))
     assert data["symbol"][0] == "H" and data["symbol"][81] == "Pb" and data["symbol"][-1] == "Fm"
     table, offset = data["table"], data["offset"]

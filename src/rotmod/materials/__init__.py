@@ -27,8 +27,10 @@ linear coefficient, which override the database (the seed paper's scenarios use
 
 from __future__ import annotations
 
+import copy
 import functools
 import importlib.resources
+import json
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,7 +41,9 @@ from rotmod._validate import as_energy, as_energy_scalar, as_scalar
 from rotmod.errors import MaterialError, ParameterError
 from rotmod.materials._formula import atom_counts
 
-__all__ = ["DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "Material", "mass_attenuation"]
+__all__ = [
+    "DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "Material", "database_provenance", "mass_attenuation",
+]
 
 #: Mass attenuation of lead at 662 keV (cm^2/g) that the seed paper's Sec. 4 scenarios use
 #: (XCOM gives 0.110).  It is the paper's number at the paper's energy, so rotmod never
@@ -88,17 +92,29 @@ class _Element:
 
 
 @functools.cache
-def _database() -> dict[str, _Element]:
-    """Element symbol -> :class:`_Element`, read once from the package data."""
+def _load() -> tuple[dict[str, _Element], dict[str, Any]]:
+    """The package data, read once: element symbol -> :class:`_Element`, and the provenance."""
     with importlib.resources.files(__name__).joinpath(_DATA_FILE).open("rb") as f:
         data = np.load(f, allow_pickle=False)
         table, offset = data["table"], data["offset"]
-        return {
+        elements = {
             str(s): _Element(int(z), float(m), float(rho), table[offset[k]:offset[k + 1]])
             for k, (s, z, m, rho) in enumerate(
                 zip(data["symbol"], data["z"], data["atomic_mass"], data["density"], strict=True)
             )
         }
+        return elements, json.loads(str(data["provenance"]))
+
+
+def _database() -> dict[str, _Element]:
+    return _load()[0]
+
+
+def database_provenance() -> dict[str, Any]:
+    """Where the attenuation data come from: source, the fisx version they were taken from,
+    the date and script that extracted them, the table's columns (a JSON-ready dict, for
+    records of a run's environment)."""
+    return copy.deepcopy(_load()[1])
 
 
 def _composition(name: str) -> dict[str, float]:

@@ -1,7 +1,7 @@
 """Optional dependencies: imported on first use, with an error that says what to install.
 
 rotmod's core install is what every command needs (numpy, scipy, numba, astropy, matplotlib,
-fisx, zarr, dask, tqdm, jinja2).  Features that only some users want live in extras
+zarr, dask, tqdm, jinja2, ...; all installed from wheels).  Features that only some users want live in extras
 (``pip install "rotmod[yaml]"``, ``"rotmod[distributed]"``, ``"rotmod[all]"``).
 """
 

@@ -43,6 +43,7 @@ __all__ = [
     "check_complete",
     "create_dense",
     "dense_array",
+    "disk_bytes",
     "finalise",
     "mark_done",
     "marked_done",
@@ -94,6 +95,13 @@ def as_store_path(path: Any) -> Path:
 def partial_path(path: Path) -> Path:
     """Where the store at ``path`` is written until it is complete."""
     return path.with_name(path.name + _PARTIAL)
+
+
+def disk_bytes(path: Path) -> int:
+    """Bytes held by the files under ``path`` (0 when it does not exist)."""
+    if not path.is_dir():
+        return 0
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
 
 
 # ------------------------------------------------------------------------------- metadata

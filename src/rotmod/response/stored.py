@@ -241,7 +241,9 @@ def save_response(
     check_store_disk(path, nbytes, what, hint=kind.disk_hint)
     partial = fmt.partial_path(path)
     shutil.rmtree(partial, ignore_errors=True)
-    kind.write(partial, response, response.metadata(), chunks)
+    meta = response.metadata()
+    kind.write(partial, response, meta, chunks)
+    fmt.write_axes(partial, meta, response.instrument, response.grid, response.time_bins)
     fmt.finalise(partial, path, overwrite)
     return open_response(path)
 

@@ -23,7 +23,7 @@ from rotmod.io import response_store as fmt
 from rotmod.io.atomic import check_overwrite
 from rotmod.io.lock import PathLock
 from rotmod.profiles.base import ProfileModel
-from rotmod.response._plan import ResponsePlan, make_plan
+from rotmod.response._plan import ResponsePlan, check_plan_memory, make_plan
 from rotmod.response.parallel import block_grid, iter_blocks
 from rotmod.response.spec import as_spec
 from rotmod.response.stored import (
@@ -100,8 +100,10 @@ def write_response(
     check_overwrite(path, overwrite)
     spec = as_spec(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors,
                    distance=distance, default_dtype=np.float32)
-    # Before the plan (whose projection alone can take minutes for a large grid); a resumed
-    # store needs only what its .partial form does not hold yet.
+    # Both budgets before the plan, whose projection alone can take minutes for a large grid
+    # (memory first, as every entry point refuses); a resumed store needs only what its
+    # .partial form does not hold yet.
+    check_plan_memory(spec)
     check_store_disk(path, *dense_estimate(spec.shape, spec.dtype),
                      written=fmt.disk_bytes(fmt.partial_path(path)))
     plan = make_plan(spec)
@@ -148,5 +150,7 @@ def _write_locked(path: Path, plan: ResponsePlan, meta: dict[str, Any], chunks: 
         if on_chunk is not None:
             on_chunk(n_done, len(blocks))
     fmt.check_complete(arr, blocks, partial, p_max)
+    spec = plan.spec
+    fmt.write_axes(partial, meta, spec.instrument, spec.grid, spec.time_bins)
     fmt.finalise(partial, path, overwrite)
     return open_response(path)

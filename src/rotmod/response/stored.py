@@ -27,6 +27,7 @@ import numpy as np
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.io import response_store as fmt
 from rotmod.io.atomic import check_overwrite
+from rotmod.io.lock import PathLock
 from rotmod.limits import check_disk
 from rotmod.registry import Registry
 from rotmod.response.materialised import MaterialisedResponse
@@ -233,6 +234,8 @@ def save_response(
     rotmod.limits.DiskSpaceError
         The store (uncompressed) would not fit in the free disk space at ``path``; refused
         before anything is written.
+    rotmod.io.lock.LockedError
+        Another process is writing the same store.
     """
     path = fmt.as_store_path(path)
     check_overwrite(path, overwrite)
@@ -240,11 +243,13 @@ def save_response(
     nbytes, what = kind.estimate(response)
     check_store_disk(path, nbytes, what, hint=kind.disk_hint)
     partial = fmt.partial_path(path)
-    shutil.rmtree(partial, ignore_errors=True)
-    meta = response.metadata()
-    kind.write(partial, response, meta, chunks)
-    fmt.write_axes(partial, meta, response.instrument, response.grid, response.time_bins)
-    fmt.finalise(partial, path, overwrite)
+    # The lock keeps a write_response of the same path from losing its .partial store here.
+    with PathLock(path):
+        shutil.rmtree(partial, ignore_errors=True)
+        meta = response.metadata()
+        kind.write(partial, response, meta, chunks)
+        fmt.write_axes(partial, meta, response.instrument, response.grid, response.time_bins)
+        fmt.finalise(partial, path, overwrite)
     return open_response(path)
 
 

@@ -61,7 +61,7 @@ def dense_estimate(shape: tuple[int, int, int], dtype: Any) -> tuple[float, str]
     # A float product: shapes a user may ask for overflow no int64 here, and the bound is
     # an estimate, not an allocation.
     return (float(nd) * nt * nn * dt.itemsize,
-            f"a response store of {nd} detectors x {nt} time bins x {nn} pixels {dt.name}")
+            f"a response store of {nd} detector(s) x {nt} time bins x {nn} pixels {dt.name}")
 
 
 def check_store_disk(path: Path, nbytes: float, what: str, *, hint: str = DENSE_DISK_HINT,

@@ -129,6 +129,9 @@ def _write_locked(path: Path, plan: ResponsePlan, meta: dict[str, Any], chunks: 
         log.info("resuming %s", partial)
     else:
         arr = fmt.create_dense(partial, meta, chunks)
+    # The axes first: whatever describing them costs is paid before the chunks, not after.
+    spec = plan.spec
+    fmt.write_axes(partial, meta, spec.instrument, spec.grid, spec.time_bins)
     blocks = block_grid(plan.shape, chunks)
     marked = fmt.marked_done(partial)
     # A marker says a chunk was written, not that it is still whole: read those back.
@@ -150,7 +153,5 @@ def _write_locked(path: Path, plan: ResponsePlan, meta: dict[str, Any], chunks: 
         if on_chunk is not None:
             on_chunk(n_done, len(blocks))
     fmt.check_complete(arr, blocks, partial, p_max)
-    spec = plan.spec
-    fmt.write_axes(partial, meta, spec.instrument, spec.grid, spec.time_bins)
     fmt.finalise(partial, path, overwrite)
     return open_response(path)

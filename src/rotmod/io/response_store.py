@@ -407,7 +407,8 @@ def _describe(meta: dict[str, Any], grid: SkyGeometry | None) -> dict[str, str]:
     energy = meta.get("energy")
     out["energy"] = "not given" if energy is None else f"{energy:g} keV"
     distance = meta.get("distance")
-    out["source_distance"] = "infinity" if distance is None else f"{distance:g} cm"
+    if mask:  # a spec's metadata leaves the distance out for sources at infinity
+        out["source_distance"] = "infinity" if distance is None else f"{distance:g} cm"
     op = meta.get("operator") or {}
     if op:
         out["operator"] = f"{op.get('kind')} (tolerance {op.get('tolerance')})"

@@ -4,6 +4,8 @@ and nothing a user owns is destroyed (issue 13's examples that rotmod now refuse
 from __future__ import annotations
 
 import re
+import shutil
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -138,6 +140,22 @@ def test_huge_requests_are_refused_up_front(capsys, files, argv, what) -> None:
     assert code == 2 and "Traceback" not in err, err
     assert re.search(rf"{what}.* needs about .* more than rotmod's memory budget", err), err
     assert not list(files.glob("big*"))
+
+
+def test_a_store_larger_than_the_free_disk_is_refused_up_front(capsys, monkeypatch,
+                                                              tmp_path) -> None:
+    # `rotmod response --pixel 0.001` (a ~440 GB store) used to start computing; now the
+    # store's size is compared with the free space first.  The free space is set to 1 GiB:
+    # 1400 x 1400 pixels x 560 bins x 4 B = 4.4 GB for one detector.
+    monkeypatch.setattr(shutil, "disk_usage",
+                        lambda path: SimpleNamespace(total=2**40, used=2**40 - 2**30, free=2**30))
+    code, err = _cli(capsys, "response", "--fov", "14", "--pixel", "0.01",
+                     "-o", tmp_path / "big.zarr")
+    assert code == 2 and "Traceback" not in err, err
+    assert re.search(r"a response store of 1 detector\(s\) x \d+ time bins x 1960000 pixels "
+                     r"float32 needs up to .* of disk \(uncompressed\), more than the 1\.00 GiB "
+                     r"free at '.*big\.zarr'; use larger pixels", err), err
+    assert list(tmp_path.iterdir()) == []  # no store, no .partial, no lock
 
 
 def test_budget_is_configurable_and_checked(monkeypatch, tmp_path) -> None:

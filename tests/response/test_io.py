@@ -211,6 +211,11 @@ def test_a_second_writer_is_refused_and_a_later_run_recovers(tmp_path, inst, gri
         write_response(path, inst, grid, 20)
     # The lock dies with its holder: the next run goes ahead.
     assert write_response(path, inst, grid, 20).n_time == 20
+    # save_response takes the same lock (it would otherwise remove a writer's .partial store).
+    with PathLock(path), pytest.raises(LockedError, match=rf"pid {os.getpid()}"):
+        save_response(path, build_response(inst, grid, 20), overwrite=True)
+    # No lock file is left beside the store.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["l.zarr"]
 
 
 def test_every_operator_is_stored_by_its_store_kind(tmp_path, inst, grid, ref):

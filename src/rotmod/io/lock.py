@@ -1,21 +1,33 @@
 """One writer at a time for an output path.
 
-``PathLock(path)`` takes an exclusive ``flock`` on ``<path>.lock`` for as long as the ``with``
-block runs and writes the owner's pid, host and start time into it.  A second writer gets a
-:class:`LockedError` naming the owner at once (no waiting, no hang).  The kernel releases an
-``flock`` when its process dies, however it dies, so a lock left behind by a killed run is
-never stale: the next run takes it and resumes.
+``PathLock(path)`` takes an exclusive lock on ``<path>.lock`` (a :class:`filelock.FileLock`:
+``flock`` on POSIX, ``LockFileEx`` on Windows) for as long as the ``with`` block runs, and
+writes the owner's pid, host and start time into it.  A second writer gets a
+:class:`LockedError` naming the owner at once (no waiting, no hang).  The operating system
+releases the lock when its process dies, however it dies, so a lock left behind by a killed run
+is never stale: the next run takes it and resumes.
+
+The lock file does not outlive a run that ends normally: the holder removes it *while it still
+holds the lock*, then releases.  That is safe because filelock refuses a lock taken on a file
+that was removed meanwhile (its link count is 0; ``filelock._native._unix``), so a peer that
+opened the old file just before the removal never believes it holds the lock: it is refused
+like any writer that came while the lock was held, and its next run creates a fresh file.
+(On Windows a held file cannot be removed; filelock removes it after the release instead.)
+Only a run that was killed leaves its ``.lock`` file behind, holding the killed owner's
+details; the next run takes it over and removes it when done.
 """
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import socket
 import time
+from contextlib import suppress
 from pathlib import Path
 from types import TracebackType
+
+from filelock import FileLock, Timeout
 
 from rotmod.errors import RotmodError
 
@@ -26,41 +38,63 @@ class LockedError(RotmodError):
     """Another live process is writing the same output."""
 
 
+def _write_owner(fd: int) -> None:
+    # Called by filelock with the locked descriptor: this process's details, for the message
+    # a second writer gets.  Through the locked descriptor, so it works where a second handle
+    # could not write (Windows locks are mandatory).
+    info = {"pid": os.getpid(), "host": socket.gethostname(),
+            "since": time.strftime("%Y-%m-%d %H:%M:%S")}
+    os.ftruncate(fd, 0)
+    os.lseek(fd, 0, os.SEEK_SET)
+    os.write(fd, json.dumps(info).encode())
+
+
 class PathLock:
-    """Exclusive, non-blocking lock on ``<path>.lock`` (see the module notes)."""
+    """Exclusive, non-blocking lock on ``<path>.lock`` (see the module notes).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The output to protect; the lock file is ``<path>.lock`` beside it.
+
+    Raises
+    ------
+    LockedError
+        On entry, when another process (or another ``PathLock`` of this one) holds the lock.
+    """
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
         self.lock_path = self.path.with_name(self.path.name + ".lock")
-        self._fd: int | None = None
+        self._lock = FileLock(self.lock_path, blocking=False, on_acquired=_write_owner)
+
+    def _owner(self) -> str:
+        try:
+            owner = json.loads(self.lock_path.read_text() or "{}")
+        except (OSError, ValueError, UnicodeDecodeError):  # gone, unreadable or half-written
+            owner = {}
+        if not isinstance(owner, dict) or not owner:
+            return "another process"
+        return f"pid {owner.get('pid')} on {owner.get('host')} since {owner.get('since')}"
 
     def __enter__(self) -> PathLock:
-        fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o666)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            try:
-                owner = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
-            except (ValueError, UnicodeDecodeError):
-                owner = {}
-            os.close(fd)
-            who = (f"pid {owner.get('pid')} on {owner.get('host')} since {owner.get('since')}"
-                   if owner else "another process")
+            self._lock.acquire()
+        except Timeout:
             raise LockedError(
-                f"{str(self.path)!r} is being written by {who}; wait for it to finish (an "
-                "interrupted run's lock is released with its process: just run again)"
+                f"{str(self.path)!r} is being written by {self._owner()}; wait for it to finish "
+                "(an interrupted run's lock is released with its process: just run again)"
             ) from None
-        os.ftruncate(fd, 0)
-        info = {"pid": os.getpid(), "host": socket.gethostname(),
-                "since": time.strftime("%Y-%m-%d %H:%M:%S")}
-        os.pwrite(fd, json.dumps(info).encode(), 0)
-        self._fd = fd
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
-        if self._fd is not None:
-            os.ftruncate(self._fd, 0)
-            fcntl.flock(self._fd, fcntl.LOCK_UN)
-            os.close(self._fd)
-            self._fd = None
+        if not self._lock.is_locked:
+            return
+        try:
+            # Removed while still held (see the module notes); a held file cannot be removed on
+            # Windows, where filelock removes it after the release.
+            with suppress(OSError):
+                self.lock_path.unlink()
+        finally:
+            self._lock.release()

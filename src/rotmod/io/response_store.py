@@ -15,6 +15,25 @@ binning, model, energy, dtype, shape, rotmod version) plus ``format_version`` (a
 attenuation coefficients (opaque masks) exact.  Every chunk carries a CRC-32C checksum and
 is checked when it is read back.
 
+For every other tool (``xarray.open_zarr(path)``, zarr, any zarr v3 reader) a store is also
+self-describing, in the CF conventions' terms (:func:`write_axes`, at finalisation):
+
+* ``P`` has the zarr v3 ``dimension_names`` ``("detector", "time_bin", "pixel")`` (:data:`DIMS`;
+  a Radon ``table`` has ``("detector_offset", "direction_node")``), and the attributes
+  ``units``, ``long_name`` and ``coordinates`` (the names of its coordinate arrays);
+* coordinate arrays, one per axis quantity, each with ``units`` and ``long_name``:
+  ``mask_angle`` (deg, each time bin's centre), ``detector_x``/``detector_y`` (cm),
+  ``theta``/``phi`` (deg, each pixel's direction in the instrument frame), ``ra``/``dec``
+  (deg, ICRS, for grids fixed on the sky), ``pixel_y``/``pixel_x`` (the image row and column
+  of a WCS grid's pixel: ``ds.set_index(pixel=["pixel_y", "pixel_x"]).unstack("pixel")``
+  gives images), ``healpix_index`` (HEALPix grids);
+* group attributes in words (``title``, ``instrument``, ``sky_grid``, ``time_bins``,
+  ``model``, ``energy`` with its unit, ``source_distance``, ``dtype``, ``rotmod_version``);
+* consolidated metadata (one read opens the store; xarray opens it without a warning).
+
+rotmod itself reads only the JSON metadata and ``P``/``table``: stores written before these
+additions (the same ``format_version``) open as before, and older rotmod opens the new ones.
+
 Writing is atomic: a store is written as ``<path>.partial`` and renamed to ``<path>`` by
 :func:`finalise` once complete.  A resumable writer marks each chunk written with a file
 ``<path>.partial/_done/<i>`` (:func:`mark_done`), so a marker always means a complete chunk.
@@ -29,20 +48,29 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import warnings
 from pathlib import Path
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.io.atomic import check_overwrite
+from rotmod.sky.celestial import CelestialGrid
+from rotmod.sky.geometry import SkyGeometry, WcsGeometry
+from rotmod.sky.healpix import HealpixGrid
 
 __all__ = [
+    "DIMS",
     "FORMAT_VERSION",
+    "TABLE_DIMS",
     "as_store_path",
+    "axis_coords",
     "check_complete",
     "create_dense",
     "dense_array",
+    "disk_bytes",
     "finalise",
     "mark_done",
     "marked_done",
@@ -52,6 +80,7 @@ __all__ = [
     "read_checked",
     "read_table",
     "verified",
+    "write_axes",
     "write_table",
 ]
 
@@ -59,6 +88,17 @@ FORMAT_VERSION = 1
 _ATTR = "rotmod_response"
 _PARTIAL = ".partial"
 _DONE = "_done"
+
+#: Names of the axes of ``P[d, t, n]`` (zarr v3 ``dimension_names``; xarray's ``dims``).
+DIMS = ("detector", "time_bin", "pixel")
+#: Names of the axes of a Radon table ``Psi[j, k r]``: the detector's offset within one mask
+#: period (rows), and the nodes of the projected direction (slope ``k``, obliquity ring ``r``).
+TABLE_DIMS = ("detector_offset", "direction_node")
+#: Coordinate values per chunk (float64: 8 MB), so a huge grid's coordinates stream too.
+_COORD_CHUNK = 1 << 20
+
+#: A coordinate: its dimension names, values and CF attributes (``units``, ``long_name``).
+Coord = tuple[tuple[str, ...], np.ndarray, dict[str, str]]
 
 
 def _zarr() -> Any:
@@ -94,6 +134,13 @@ def as_store_path(path: Any) -> Path:
 def partial_path(path: Path) -> Path:
     """Where the store at ``path`` is written until it is complete."""
     return path.with_name(path.name + _PARTIAL)
+
+
+def disk_bytes(path: Path) -> int:
+    """Bytes held by the files under ``path`` (0 when it does not exist)."""
+    if not path.is_dir():
+        return 0
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
 
 
 # ------------------------------------------------------------------------------- metadata
@@ -159,7 +206,7 @@ def create_dense(partial: Path, meta: dict[str, Any], chunks: tuple[int, int]) -
     g = _new_group(partial, meta)
     arr = g.create_array(
         "P", shape=(nd, nt, nn), chunks=(nd, *chunks), dtype=meta["dtype"], fill_value=np.nan,
-        compressors=_compressors(),
+        compressors=_compressors(), dimension_names=DIMS,
     )
     (partial / _DONE).mkdir()
     return arr
@@ -262,7 +309,7 @@ def write_table(partial: Path, meta: dict[str, Any], table: np.ndarray) -> None:
     rows = max(1, (16 << 20) // max(1, table.shape[1] * table.itemsize))
     arr = g.create_array(
         "table", shape=table.shape, chunks=(rows, table.shape[1]), dtype=table.dtype,
-        fill_value=np.nan, compressors=_compressors(),
+        fill_value=np.nan, compressors=_compressors(), dimension_names=TABLE_DIMS,
     )
     arr[...] = table
     read_table(g, partial)
@@ -289,10 +336,123 @@ def read_table(group: Any, store: Path) -> np.ndarray:
     return table
 
 
+# ------------------------------------------------------------------ axes, for other tools
+def axis_coords(instrument: Any, grid: SkyGeometry | None, time_bins: Any) -> dict[str, Coord]:
+    """The coordinates of the axes of ``P`` that ``instrument``, ``grid`` and ``time_bins``
+    give (each may be ``None``: its coordinates are left out).
+
+    Returns
+    -------
+    dict
+        Name -> ``(dims, values, attrs)``: see the module notes for the names.
+    """
+    out: dict[str, Coord] = {}
+    if time_bins is not None:
+        out["mask_angle"] = (("time_bin",), np.degrees(time_bins.angles()), {
+            "units": "deg", "long_name": "mask angle at the centre of the time bin"})
+    if instrument is not None:
+        pos = np.asarray(instrument.detectors.positions, dtype=float)
+        for i, axis in enumerate("xy"):
+            out[f"detector_{axis}"] = (("detector",), pos[:, i], {
+                "units": "cm", "long_name": f"{axis} of the detector's centre (instrument frame)"})
+    if grid is None:
+        return out
+    theta, phi = grid.directions()
+    out["theta"] = (("pixel",), theta.to_value(u.deg), {
+        "units": "deg", "long_name": "zenith angle of the pixel centre (instrument frame)"})
+    out["phi"] = (("pixel",), phi.to_value(u.deg), {
+        "units": "deg", "long_name": "azimuth of the pixel centre (instrument frame)"})
+    # The grids fixed on the sky know their pixels' celestial coordinates (sky_coords);
+    # an instrument-frame grid has none without an attitude.
+    if isinstance(grid, CelestialGrid | HealpixGrid):
+        c = grid.sky_coords().icrs
+        out["ra"] = (("pixel",), c.ra.to_value(u.deg), {
+            "units": "deg", "long_name": "right ascension of the pixel centre (ICRS)"})
+        out["dec"] = (("pixel",), c.dec.to_value(u.deg), {
+            "units": "deg", "long_name": "declination of the pixel centre (ICRS)"})
+    if isinstance(grid, WcsGeometry):
+        iy, ix = np.divmod(np.arange(grid.size, dtype=np.int64), grid.shape[1])
+        out["pixel_y"] = (("pixel",), iy, {"units": "1", "long_name": "image row of the pixel"})
+        out["pixel_x"] = (("pixel",), ix, {"units": "1",
+                                           "long_name": "image column of the pixel"})
+    if isinstance(grid, HealpixGrid):
+        out["healpix_index"] = (("pixel",), np.asarray(grid.pixels, dtype=np.int64), {
+            "units": "1", "long_name": f"HEALPix index (nside {grid.nside}, {grid.order} "
+                                       "order, ICRS)"})
+    return out
+
+
+def _describe(meta: dict[str, Any], grid: SkyGeometry | None) -> dict[str, str]:
+    """The store's metadata in words (group attributes for people and other tools)."""
+    out = {"title": "rotmod response"}
+    inst = meta.get("instrument") or {}
+    mask, det = inst.get("mask") or {}, inst.get("detectors") or {}
+    if mask:
+        n_det = meta.get("shape", [None])[0]
+        out["instrument"] = (
+            f"{n_det} detector(s) of {det.get('diameter')} cm under a {mask.get('material')} "
+            f"slat mask: slats {mask.get('slat_width')} cm, gaps {mask.get('slat_gap')} cm, "
+            f"{mask.get('thickness')} cm thick, {mask.get('height')} cm above the detectors")
+    if grid is not None:
+        ny, nx = grid.shape
+        out["sky_grid"] = (f"{grid.kind} grid ({type(grid).__name__}) of {grid.size} pixels "
+                           f"({ny} x {nx}), fixed in the {grid.frame} frame")
+    tb = meta.get("time_bins")
+    if tb:
+        out["time_bins"] = (f"{tb.get('n_bins')} mask-angle bins per rotation, mode "
+                            f"{tb.get('mode')!r}, {tb.get('n_sub')} sub-sample(s) per bin")
+    model = meta.get("model") or {}
+    if model:
+        out["model"] = str(model.get("model"))
+    energy = meta.get("energy")
+    out["energy"] = "not given" if energy is None else f"{energy:g} keV"
+    distance = meta.get("distance")
+    if mask:  # a spec's metadata leaves the distance out for sources at infinity
+        out["source_distance"] = "infinity" if distance is None else f"{distance:g} cm"
+    op = meta.get("operator") or {}
+    if op:
+        out["operator"] = f"{op.get('kind')} (tolerance {op.get('tolerance')})"
+    for key in ("dtype", "rotmod_version"):
+        if meta.get(key) is not None:
+            out[key] = str(meta[key])
+    return out
+
+
+def write_axes(partial: Path, meta: dict[str, Any], instrument: Any,
+               grid: SkyGeometry | None, time_bins: Any) -> None:
+    """Make the store at ``partial`` self-describing (see the module notes): the coordinate
+    arrays of :func:`axis_coords`, the CF attributes of ``P`` (or ``table``) and the group's
+    attributes in words.  A coordinate whose length is not its axis's in ``meta["shape"]``
+    (e.g. an instrument of more detectors than the response) is left out."""
+    g = _zarr().open_group(str(partial), mode="r+")
+    sizes = dict(zip(DIMS, meta.get("shape") or (), strict=False))
+    names = []
+    for name, (dims, values, attrs) in axis_coords(instrument, grid, time_bins).items():
+        if any(sizes.get(d) != n for d, n in zip(dims, values.shape, strict=True)):
+            continue
+        arr = g.create_array(name, shape=values.shape, dtype=values.dtype, overwrite=True,
+                             chunks=tuple(min(n, _COORD_CHUNK) or 1 for n in values.shape),
+                             compressors=_compressors(), dimension_names=dims)
+        arr[...] = values
+        arr.attrs.update(attrs)
+        names.append(name)
+    if "P" in g:
+        g["P"].attrs.update({
+            "units": "1", "coordinates": " ".join(names),
+            "long_name": "characteristic profile: the fraction of a pixel's rate on an "
+                         "unobstructed detector face that the detector counts in the time bin"})
+    if "table" in g:
+        g["table"].attrs.update({
+            "units": "1",
+            "long_name": "Radon table of profile values by detector offset and projected "
+                         "direction (rotmod.response.RadonResponse)"})
+    g.attrs.update(_describe(meta, grid))
+
+
 # -------------------------------------------------------------------------------- finish
 def finalise(partial: Path, path: Path, overwrite: bool) -> None:
-    """Remove the done markers, mark the store complete and rename it to ``path`` (an
-    existing ``path`` is replaced only now, with ``overwrite``).
+    """Remove the done markers, mark the store complete, consolidate its metadata and rename
+    it to ``path`` (an existing ``path`` is replaced only now, with ``overwrite``).
 
     Raises
     ------
@@ -300,8 +460,15 @@ def finalise(partial: Path, path: Path, overwrite: bool) -> None:
         ``path`` exists (created meanwhile) and ``overwrite`` is false.
     """
     shutil.rmtree(partial / _DONE, ignore_errors=True)
-    g = _zarr().open_group(str(partial), mode="r+")
+    zarr = _zarr()
+    g = zarr.open_group(str(partial), mode="r+")
     g.attrs["complete"] = True
+    with warnings.catch_warnings():
+        # zarr warns that consolidated metadata is not (yet) in the zarr v3 specification;
+        # zarr-python and xarray read it (xarray warns when it is absent), and a reader that
+        # does not know it reads each array's own zarr.json, which stays.
+        warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
+        zarr.consolidate_metadata(str(partial))
     check_overwrite(path, overwrite)
     trash = None
     if path.exists():

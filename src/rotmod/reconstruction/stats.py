@@ -11,6 +11,7 @@ floor of ``1e-12`` counts in the deviance.
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import xlogy
 
 __all__ = ["chi2", "deviance", "deviance_terms", "log_likelihood"]
 
@@ -23,9 +24,8 @@ def deviance_terms(y: np.ndarray, mu: np.ndarray, valid: np.ndarray | None = Non
     m = np.maximum(np.asarray(mu, dtype=float), _MU_FLOOR)
     if valid is not None:
         y, m = y[valid], m[valid]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(y > 0, y * np.log(y / m), 0.0)
-    return 2.0 * (m - y + t)
+    # xlogy is 0 where y == 0 (0 ln 0 = 0), with no log(0) evaluated.
+    return 2.0 * (m - y + xlogy(y, y / m))
 
 
 def deviance(y: np.ndarray, mu: np.ndarray, valid: np.ndarray | None = None) -> float:
@@ -39,7 +39,7 @@ def log_likelihood(y: np.ndarray, mu: np.ndarray, valid: np.ndarray | None = Non
     m = np.maximum(np.asarray(mu, dtype=float), _MU_FLOOR)
     if valid is not None:
         y, m = y[valid], m[valid]
-    return float(np.sum(np.where(y > 0, y * np.log(m), 0.0) - m))
+    return float(np.sum(xlogy(y, m) - m))
 
 
 def chi2(y: np.ndarray, mu: np.ndarray, valid: np.ndarray | None = None) -> float:

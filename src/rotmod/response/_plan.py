@@ -23,7 +23,8 @@ from rotmod.profiles.base import ProfileModel, ProjectedGeometry, project
 from rotmod.response.parallel import block_grid, block_ranges, iter_blocks
 from rotmod.response.spec import ResponseSpec
 
-__all__ = ["ResponsePlan", "distinct_bins", "fold_half_turn", "make_plan", "repeat_half_turn"]
+__all__ = ["ResponsePlan", "check_plan_memory", "distinct_bins", "fold_half_turn", "make_plan",
+           "repeat_half_turn"]
 
 
 def distinct_bins(n_bins: int, symmetric: bool = True) -> int:
@@ -200,6 +201,21 @@ class ResponsePlan:
         return repeat_half_turn(out, half)
 
 
+def check_plan_memory(spec: ResponseSpec) -> None:
+    """Refuse a plan of ``spec`` larger than the memory budget (before any work: the writer
+    asks this first, then whether its store fits on the disk, then makes the plan).
+
+    Raises
+    ------
+    MemoryBudgetError
+    """
+    inst, grid = spec.instrument, spec.grid
+    # Pixel directions and the projected geometry: ~(2 n_det + 6) float64 per pixel.
+    check_memory(8.0 * grid.size * (2 * len(inst.detectors) + 6),
+                 f"projecting {grid.size} sky pixels for {len(inst.detectors)} detectors",
+                 hint="use larger pixels or a smaller field")
+
+
 def make_plan(spec: ResponseSpec) -> ResponsePlan:
     """Project every sky pixel of ``spec`` once and check the model's domain.
 
@@ -207,11 +223,8 @@ def make_plan(spec: ResponseSpec) -> ResponsePlan:
     ------
     MaterialError, ModelValidityError, MemoryBudgetError
     """
+    check_plan_memory(spec)
     inst, grid = spec.instrument, spec.grid
-    # Pixel directions and the projected geometry: ~(2 n_det + 6) float64 per pixel.
-    check_memory(8.0 * grid.size * (2 * len(inst.detectors) + 6),
-                 f"projecting {grid.size} sky pixels for {len(inst.detectors)} detectors",
-                 hint="use larger pixels or a smaller field")
     theta, phi = grid.directions()
     geom = project(inst, theta, phi, spec.energy, spec.distance)
     spec.model.validate(inst, geom)

@@ -715,6 +715,15 @@ class RadonStore(StoreKind):
     """A :class:`RadonResponse` stored as its table (metadata ``operator.kind = "radon"``);
     opens as the same operator, the table checked."""
 
+    disk_hint = "raise tolerance or use a smaller field, or write to a disk with more space"
+
+    @classmethod
+    def estimate(cls, response: ResponseOperator) -> tuple[float, str]:
+        """The table's bytes (megabytes where ``P`` would take terabytes)."""
+        t = response.table
+        return (float(t.nbytes),
+                f"a Radon response store (a table of {t.shape[0]} x {t.shape[1]} {t.dtype.name})")
+
     @classmethod
     def write(cls, partial: Path, response: ResponseOperator, meta: dict[str, Any],
               chunks: tuple[int, int] | None) -> None:

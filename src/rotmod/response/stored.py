@@ -9,6 +9,10 @@ Each operator declares how it is stored (:attr:`ResponseOperator.store_kind`), a
 its :meth:`~ResponseOperator.block`) and opens as a lazy :class:`StoredResponse`;
 ``"radon"`` stores a :class:`~rotmod.response.RadonResponse`'s table (megabytes where ``P``
 would take terabytes) and opens as the same operator.
+
+Before anything is written, the store's size is bounded (:meth:`StoreKind.estimate`: what it
+holds, uncompressed) and refused when the free disk space where it goes cannot hold it
+(:func:`check_store_disk`, :func:`rotmod.limits.check_disk`).
 """
 
 from __future__ import annotations
@@ -16,13 +20,15 @@ from __future__ import annotations
 import shutil
 from abc import ABC, abstractmethod
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.io import response_store as fmt
 from rotmod.io.atomic import check_overwrite
+from rotmod.io.lock import PathLock
+from rotmod.limits import check_disk
 from rotmod.registry import Registry
 from rotmod.response.materialised import MaterialisedResponse
 from rotmod.response.operator import BlockwiseResponse, ResponseOperator
@@ -34,15 +40,55 @@ __all__ = [
     "StoreKind",
     "StoredResponse",
     "check_response_matches",
+    "check_store_disk",
     "default_chunks",
+    "dense_estimate",
     "load_response",
     "open_response",
     "save_response",
 ]
 
 
+#: What to change when a store of the values ``P`` does not fit on the disk.
+DENSE_DISK_HINT = ("use larger pixels or a smaller field, fewer time bins or detectors, or "
+                   "write the store to a disk with more free space")
+
+
+def dense_estimate(shape: tuple[int, int, int], dtype: Any) -> tuple[float, str]:
+    """Bytes of the values ``P`` of ``shape`` uncompressed, and their description."""
+    nd, nt, nn = (int(v) for v in shape)
+    dt = np.dtype(dtype)
+    # A float product: shapes a user may ask for overflow no int64 here, and the bound is
+    # an estimate, not an allocation.
+    return (float(nd) * nt * nn * dt.itemsize,
+            f"a response store of {nd} detector(s) x {nt} time bins x {nn} pixels {dt.name}")
+
+
+def check_store_disk(path: Path, nbytes: float, what: str, *, hint: str = DENSE_DISK_HINT,
+                     written: float = 0.0) -> None:
+    """Refuse a store of up to ``nbytes`` (less ``written``, already on disk in its
+    ``.partial`` form) that the free disk space at ``path`` cannot hold.
+
+    Raises
+    ------
+    rotmod.limits.DiskSpaceError
+    """
+    check_disk(max(0.0, nbytes - written), path, what, hint=hint)
+
+
 class StoreKind(ABC):
     """How one kind of operator is written to and rebuilt from a store."""
+
+    #: What to change when a store of this kind does not fit on the disk.
+    disk_hint: ClassVar[str] = DENSE_DISK_HINT
+
+    @classmethod
+    def estimate(cls, response: ResponseOperator) -> tuple[float, str]:
+        """Upper bound of the store's size in bytes (what it holds, uncompressed) and its
+        description for a refusal; by default the values ``P`` (a kind that stores something
+        else overrides it)."""
+        return dense_estimate((response.n_det, response.n_time, response.n_sky),
+                              response.dtype)
 
     @classmethod
     @abstractmethod
@@ -180,14 +226,30 @@ def save_response(
     -------
     StoredResponse or RadonResponse
         The store, opened (see :func:`open_response`).
+
+    Raises
+    ------
+    ParameterError
+        ``path`` exists and ``overwrite`` is false.
+    rotmod.limits.DiskSpaceError
+        The store (uncompressed) would not fit in the free disk space at ``path``; refused
+        before anything is written.
+    rotmod.io.lock.LockedError
+        Another process is writing the same store.
     """
     path = fmt.as_store_path(path)
     check_overwrite(path, overwrite)
     kind = STORE_KINDS.get(response.store_kind)
+    nbytes, what = kind.estimate(response)
+    check_store_disk(path, nbytes, what, hint=kind.disk_hint)
     partial = fmt.partial_path(path)
-    shutil.rmtree(partial, ignore_errors=True)
-    kind.write(partial, response, response.metadata(), chunks)
-    fmt.finalise(partial, path, overwrite)
+    # The lock keeps a write_response of the same path from losing its .partial store here.
+    with PathLock(path):
+        shutil.rmtree(partial, ignore_errors=True)
+        meta = response.metadata()
+        kind.write(partial, response, meta, chunks)
+        fmt.write_axes(partial, meta, response.instrument, response.grid, response.time_bins)
+        fmt.finalise(partial, path, overwrite)
     return open_response(path)
 
 

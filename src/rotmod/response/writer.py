@@ -23,10 +23,16 @@ from rotmod.io import response_store as fmt
 from rotmod.io.atomic import check_overwrite
 from rotmod.io.lock import PathLock
 from rotmod.profiles.base import ProfileModel
-from rotmod.response._plan import ResponsePlan, make_plan
+from rotmod.response._plan import ResponsePlan, check_plan_memory, make_plan
 from rotmod.response.parallel import block_grid, iter_blocks
 from rotmod.response.spec import as_spec
-from rotmod.response.stored import StoredResponse, default_chunks, open_response
+from rotmod.response.stored import (
+    StoredResponse,
+    check_store_disk,
+    default_chunks,
+    dense_estimate,
+    open_response,
+)
 
 __all__ = ["write_response"]
 
@@ -84,11 +90,22 @@ def write_response(
     InstrumentMismatchError
         A ``.partial`` store from an earlier run at ``path`` was started for other inputs
         (delete it or pass other ``path``).
+    rotmod.limits.DiskSpaceError
+        The store, uncompressed (detectors x time bins x pixels x itemsize), would not fit in
+        the free disk space at ``path``; refused before any work.
+    rotmod.io.lock.LockedError
+        Another process is writing the same store.
     """
     path = fmt.as_store_path(path)
     check_overwrite(path, overwrite)
     spec = as_spec(instrument, grid, time_bins, model, energy, dtype=dtype, detectors=detectors,
                    distance=distance, default_dtype=np.float32)
+    # Both budgets before the plan, whose projection alone can take minutes for a large grid
+    # (memory first, as every entry point refuses); a resumed store needs only what its
+    # .partial form does not hold yet.
+    check_plan_memory(spec)
+    check_store_disk(path, *dense_estimate(spec.shape, spec.dtype),
+                     written=fmt.disk_bytes(fmt.partial_path(path)))
     plan = make_plan(spec)
     meta = {**spec.to_dict(), "rotmod_version": rotmod.__version__}
     # Only for thick detectors, so that other stores are described as before.
@@ -112,6 +129,9 @@ def _write_locked(path: Path, plan: ResponsePlan, meta: dict[str, Any], chunks: 
         log.info("resuming %s", partial)
     else:
         arr = fmt.create_dense(partial, meta, chunks)
+    # The axes first: whatever describing them costs is paid before the chunks, not after.
+    spec = plan.spec
+    fmt.write_axes(partial, meta, spec.instrument, spec.grid, spec.time_bins)
     blocks = block_grid(plan.shape, chunks)
     marked = fmt.marked_done(partial)
     # A marker says a chunk was written, not that it is still whole: read those back.

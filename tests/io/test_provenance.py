@@ -66,3 +66,15 @@ def test_one_provenance_function() -> None:
     assert (cards["TELESCOP"], cards["INSTRUME"], cards["SEED"]) == ("T", "I", 3)
     assert "COMMAND" not in {k for k, _, _ in provenance_cards()}
     assert rotmod.__version__ and rotmod.__version__ != "0.0.0"
+
+
+def test_a_long_version_string_keeps_every_card_whole(monkeypatch) -> None:
+    # A development version from setuptools-scm is long; no card may be cut (astropy would
+    # warn, and the warning is an error here).
+    for version in ("0.1.1.dev165+g67c672565.d20261125", "9" * 70):
+        monkeypatch.setattr(rotmod, "__version__", version)
+        header = fits.Header()
+        for key, value, comment in provenance_cards(command="x" * 100):
+            header[key] = (value, comment)
+        back = fits.Header.fromstring(header.tostring())
+        assert back["CREATOR"] == f"rotmod {version}" and back["COMMAND"] == "x" * 100

@@ -88,6 +88,15 @@ def test_events_with_an_attitude_are_read_by_gammapy(tmp_path) -> None:
     assert g.table.meta["OBS_ID"] == 42
     gti = gammapy_data.GTI.read(path)
     assert gti.time_sum.to_value(u.s) == pytest.approx(ev.exposure)
+    # An Observation from the same file (docs/conventions.md): gammapy's Observation.read
+    # wants a fixed ground observatory (GEOLON, ...), which a balloon or satellite is not.
+    with pytest.raises(KeyError, match="GEOLON"):
+        gammapy_data.Observation.read(path)
+    obs = gammapy_data.Observation(
+        obs_id=g.table.meta["OBS_ID"], events=g, gti=gti,
+        pointing=gammapy_data.FixedPointingInfo(fixed_icrs=g.pointing_radec))
+    assert obs.get_pointing_icrs(obs.tmid).separation(att.pointing).deg < 1e-9
+    assert obs.observation_live_time_duration.to_value(u.s) == pytest.approx(ev.exposure)
 
 
 def test_two_lines_from_two_places_give_two_images() -> None:

@@ -448,6 +448,10 @@ def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool 
         h["RA_PNT"] = (att.ra, "[deg] pointing: rotation axis, RA")
         h["DEC_PNT"] = (att.dec, "[deg] pointing: rotation axis, Dec")
         h["ROLL_PNT"] = (att.roll, "[deg] position angle of the instrument +y axis")
+        h["DEADC"] = (1.0, "dead-time correction: LIVETIME = ONTIME")
+        # No GEOLON/GEOLAT/ALTITUDE: GADF's fixed ground observatory does not describe a
+        # balloon or a satellite, so gammapy's Observation.read refuses these files
+        # (docs/conventions.md says what to use instead).
     for k, v, c in [*_provenance(events.meta, seed, command),
                     *_time_cards(events.meta, events.t_start, events.t_stop, events.gti)]:
         h[k] = (v, c)

@@ -113,7 +113,7 @@ def provenance_cards(*, telescop: str = "rotmod", instrume: str = "rotmod", seed
         The command line (``sys.argv``) or parameters that made the file.
     """
     cards: list[tuple[str, Any, str]] = [
-        ("CREATOR", creator(), "software that wrote this file"),
+        ("CREATOR", creator(), "software"),
     ]
     commit = git_commit()
     if commit is not None:
@@ -132,4 +132,13 @@ def provenance_cards(*, telescop: str = "rotmod", instrume: str = "rotmod", seed
         cards.append(("COMMAND", header_text(text), "command that made this file"))
     # Always announced: any text card of a product (a command, a path, parameters) may be
     # long enough to continue on CONTINUE cards.
-    return [*cards, LONGSTRN]
+    return [(k, v, _fitting_comment(k, v, c)) for k, v, c in [*cards, LONGSTRN]]
+
+
+def _fitting_comment(key: str, value: Any, comment: str) -> str:
+    """``comment``, or none when a one-card value (a long version string) leaves it no room:
+    astropy would cut it with a warning."""
+    if not isinstance(value, str) or len(value) > 68:  # numbers fit; long text: CONTINUE
+        return comment
+    width = 10 + max(len(value.replace("'", "''")) + 2, 10)  # "KEY     = " and 'value'
+    return comment if width + 3 + len(comment) <= 80 else ""

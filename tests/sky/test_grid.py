@@ -267,7 +267,8 @@ def test_each_grid_kind_is_drawn_by_its_registered_drawer():
     assert set(IMAGE_DRAWERS.names()) == {"instrument", "celestial"}
     g = SkyGrid((3, 4), 0.5)
     ax = plot_image(np.ones(g.shape), g, colorbar=False)
-    assert ax.get_xlabel() == "tangent-plane x (deg)"
+    assert ax.get_xlabel() == "x, instrument frame (deg)"  # angles, not RA
+    assert ax.get_ylabel() == "y, instrument frame (deg)"
     ax = plot_image(np.ones((1, 5)), Ring(2.0, 5), colorbar=False)  # the default drawer
     assert ax.get_xlabel() == "theta cos phi (deg)"
     matplotlib.pyplot.close("all")

@@ -188,3 +188,15 @@ def test_healpix_images_written_before_the_gadf_convention_still_read(tmp_path) 
     back = read_image(tmp_path / "old.fits")
     np.testing.assert_array_equal(back.image, img)
     np.testing.assert_array_equal(back.uncertainty, unc)
+
+
+def test_standard_meta_cards_carry_their_unit_and_never_cut(tmp_path) -> None:
+    grid = SkyGrid((2, 2), 1.0)
+    name = "a balloon mission with a long name, fifty chars!!"
+    path = write_image(tmp_path / "m.fits", image=np.ones(grid.shape), grid=grid,
+                       meta={"exposure": 1200.0, "e_min": 100.0, "e_max": 145.0,
+                             "telescop": name})
+    h = fits.getheader(path)
+    assert h.comments["EXPOSURE"].startswith("[s]")
+    assert h.comments["E_MIN"].startswith("[keV]") and h.comments["E_MAX"].startswith("[keV]")
+    assert h["TELESCOP"] == name and h["INSTRUME"] == "rotmod"

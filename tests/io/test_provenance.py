@@ -53,8 +53,9 @@ def test_seed_is_one_integer() -> None:
     assert seed_value(np.random.SeedSequence(5)) == 5
     assert seed_value(np.random.default_rng(11)) == 11
     assert seed_value(np.random.SeedSequence([1, 2])) == "1 2"
-    with pytest.raises(ParameterError, match="seed must be"):
-        seed_value(1.5)
+    for bad in (1.5, "8", True):
+        with pytest.raises(ParameterError, match="seed must be"):
+            seed_value(bad)
 
 
 def test_one_provenance_function() -> None:

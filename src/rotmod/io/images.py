@@ -19,7 +19,7 @@ from astropy.table import Table
 from rotmod.errors import ParameterError
 from rotmod.io._fits import header_text, open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite
-from rotmod.io.provenance import provenance_cards
+from rotmod.io.provenance import fitting_comment, provenance_cards
 from rotmod.sky.geometry import SkyGeometry, image_from_hdus
 
 __all__ = ["FitsImage", "read_image", "write_image"]
@@ -171,7 +171,8 @@ def write_image(
     for k, v in (meta or {}).items():
         # Short names are standard cards (EXPOSURE, E_MIN, E_MAX, TELESCOP, OBS_ID...).
         key = k.upper() if re.fullmatch(r"[A-Za-z0-9_-]{1,8}", k) else f"HIERARCH {k}"
-        hdr[key] = (_card_value(v), _META_COMMENTS.get(key, ""))
+        value = _card_value(v)
+        hdr[key] = (value, fitting_comment(key, value, _META_COMMENTS.get(key, "")))
     if result is not None and result.history:
         t = Table({k: np.asarray(v, dtype=float) for k, v in result.history.items()})
         th = fits.table_to_hdu(t)

@@ -34,7 +34,7 @@ import rotmod
 from rotmod.errors import ParameterError
 from rotmod.io._fits import header_text
 
-__all__ = ["creator", "git_commit", "provenance_cards", "seed_value"]
+__all__ = ["creator", "fitting_comment", "git_commit", "provenance_cards", "seed_value"]
 
 #: The OGIP long-string convention: CONTINUE cards may follow a string value.
 LONGSTRN = ("LONGSTRN", "OGIP 1.0", "long string values continue on CONTINUE cards")
@@ -89,7 +89,7 @@ def seed_value(seed: Any) -> int | str | None:
         seed = seed.bit_generator.seed_seq
     if isinstance(seed, np.random.SeedSequence):
         seed = seed.entropy
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer | Sequence):
+    if isinstance(seed, bool | str) or not isinstance(seed, int | np.integer | Sequence):
         raise ParameterError(
             f"seed must be an int, a SeedSequence or a Generator, got {type(seed).__name__}")
     if isinstance(seed, Sequence):  # a SeedSequence built from a list of ints
@@ -132,10 +132,10 @@ def provenance_cards(*, telescop: str = "rotmod", instrume: str = "rotmod", seed
         cards.append(("COMMAND", header_text(text), "command that made this file"))
     # Always announced: any text card of a product (a command, a path, parameters) may be
     # long enough to continue on CONTINUE cards.
-    return [(k, v, _fitting_comment(k, v, c)) for k, v, c in [*cards, LONGSTRN]]
+    return [(k, v, fitting_comment(k, v, c)) for k, v, c in [*cards, LONGSTRN]]
 
 
-def _fitting_comment(key: str, value: Any, comment: str) -> str:
+def fitting_comment(key: str, value: Any, comment: str) -> str:
     """``comment``, or none when a one-card value (a long version string) leaves it no room:
     astropy would cut it with a warning."""
     if not isinstance(value, str) or len(value) > 68:  # numbers fit; long text: CONTINUE

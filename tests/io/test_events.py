@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from astropy.io import fits
 
+import rotmod
 from rotmod import Instrument, Mask, ParameterError, RotmodError
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.events import fold
@@ -150,3 +151,24 @@ def test_bad_files_raise_rotmod_error(events, tmp_path):
         h.writeto(tmp_path / "nokey.fits", checksum=True)  # a consistent file
     with pytest.raises(RotmodError, match="lacks keyword MASK_A"):
         read_events(tmp_path / "nokey.fits")
+
+
+def test_units_in_fits_form_and_older_ogip_form_both_read(events, tmp_path):
+    p = write_events(events, tmp_path / "ev.fits")
+    assert fits.getheader(p, "SOURCES")["TUNIT3"] == "s-1"  # the FITS standard's form
+    with fits.open(p) as h:  # as rotmod wrote it before: OGIP's "1/s"
+        h["SOURCES"].columns.change_unit("RATE", "1/s")
+        h.writeto(tmp_path / "old.fits", checksum=True)
+    assert fits.getheader(tmp_path / "old.fits", "SOURCES")["TUNIT3"] == "1/s"
+    for path in (p, tmp_path / "old.fits"):
+        np.testing.assert_array_equal(read_events(path).sources.rate, events.sources.rate)
+
+
+def test_creator_names_the_version_and_reads_back_as_rotmod(events, tmp_path):
+    p = write_events(events, tmp_path / "ev.fits")
+    assert fits.getheader(p, "EVENTS")["CREATOR"] == f"rotmod {rotmod.__version__}"
+    assert read_events(p).meta["creator"] == "rotmod"  # the data's metadata: unchanged
+    with fits.open(p) as h:  # another tool's file keeps its creator
+        h["EVENTS"].header["CREATOR"] = "othertool 2.0"
+        h.writeto(tmp_path / "other.fits", checksum=True)
+    assert read_events(tmp_path / "other.fits").meta["creator"] == "othertool 2.0"

@@ -146,9 +146,8 @@ def test_off_axis_tangent_grid_equals_the_model_at_its_pixel_directions() -> Non
     radon = RadonResponse(inst, grid, tb, 662.0, dtype=np.float64, tolerance=1e-3)
     ny, nx = grid.shape
     iy, ix = np.mgrid[0:ny, 0:nx]
-    sky = grid.wcs().pixel_to_world(ix.ravel(), iy.ravel())
-    # Instrument-frame sky: celestial (X, Y, Z) = lab (z, x, y).
-    ra, dec = sky.ra.rad, sky.dec.rad
+    # Instrument-frame (XLON, XLAT), not celestial axes: spherical (X, Y, Z) = lab (z, x, y).
+    ra, dec = np.radians(grid.wcs().pixel_to_world_values(ix.ravel(), iy.ravel()))
     lab = np.stack([np.cos(dec) * np.sin(ra), np.sin(dec), np.cos(dec) * np.cos(ra)])
     theta = np.arctan2(np.hypot(lab[0], lab[1]), lab[2])
     phi = np.arctan2(lab[1], lab[0])

@@ -88,6 +88,15 @@ def test_events_with_an_attitude_are_read_by_gammapy(tmp_path) -> None:
     assert g.table.meta["OBS_ID"] == 42
     gti = gammapy_data.GTI.read(path)
     assert gti.time_sum.to_value(u.s) == pytest.approx(ev.exposure)
+    # An Observation from the same file (docs/conventions.md): gammapy's Observation.read
+    # wants a fixed ground observatory (GEOLON, ...), which a balloon or satellite is not.
+    with pytest.raises(KeyError, match="GEOLON"):
+        gammapy_data.Observation.read(path)
+    obs = gammapy_data.Observation(
+        obs_id=g.table.meta["OBS_ID"], events=g, gti=gti,
+        pointing=gammapy_data.FixedPointingInfo(fixed_icrs=g.pointing_radec))
+    assert obs.get_pointing_icrs(obs.tmid).separation(att.pointing).deg < 1e-9
+    assert obs.observation_live_time_duration.to_value(u.s) == pytest.approx(ev.exposure)
 
 
 def test_two_lines_from_two_places_give_two_images() -> None:
@@ -313,5 +322,7 @@ def test_healpix_wide_field_images(wide, tmp_path) -> None:
     assert brightest.separation(true).deg < 1.9
     path = write_image(tmp_path / "hp.fits", res, meta={"exposure": 1200.0})
     t = Table.read(path, hdu="HEALPIX")
-    assert t.meta["NSIDE"] == 32 and t.meta["INDXSCHM"] == "EXPLICIT"
-    np.testing.assert_array_equal(t["PIXEL"], grid.pixels)
+    # The pixel indices, in the GADF sparse convention gammapy and healpy read (an explicit
+    # PIXEL column before: tests/io/test_images.py checks those files still read).
+    assert t.meta["NSIDE"] == 32 and t.meta["INDXSCHM"] == "SPARSE"
+    np.testing.assert_array_equal(t["PIX"], grid.pixels)

@@ -115,11 +115,11 @@ def test_bad_grid(kwargs, match):
 
 
 def _lab_directions_of_wcs(g: SkyGrid) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel directions through astropy's WCS: instrument-frame sky (RA, Dec) -> lab."""
+    """Pixel directions through astropy's WCS: instrument-frame (XLON, XLAT) -> lab."""
     ny, nx = g.shape
     iy, ix = np.mgrid[0:ny, 0:nx]
-    sky = g.wcs().pixel_to_world(ix.ravel(), iy.ravel())
-    ra, dec = sky.ra.rad, sky.dec.rad
+    # The axes are not celestial (no SkyCoord): the world values are (XLON, XLAT) in deg.
+    ra, dec = np.radians(g.wcs().pixel_to_world_values(ix.ravel(), iy.ravel()))
     # Celestial (X, Y, Z) = lab (z, x, y) (module notes).
     x, y, z = np.cos(dec) * np.sin(ra), np.sin(dec), np.cos(dec) * np.cos(ra)
     return np.arctan2(np.hypot(x, y), z), np.arctan2(y, x)
@@ -267,7 +267,8 @@ def test_each_grid_kind_is_drawn_by_its_registered_drawer():
     assert set(IMAGE_DRAWERS.names()) == {"instrument", "celestial"}
     g = SkyGrid((3, 4), 0.5)
     ax = plot_image(np.ones(g.shape), g, colorbar=False)
-    assert ax.get_xlabel() == "tangent-plane x (deg)"
+    assert ax.get_xlabel() == "x, instrument frame (deg)"  # angles, not RA
+    assert ax.get_ylabel() == "y, instrument frame (deg)"
     ax = plot_image(np.ones((1, 5)), Ring(2.0, 5), colorbar=False)  # the default drawer
     assert ax.get_xlabel() == "theta cos phi (deg)"
     matplotlib.pyplot.close("all")

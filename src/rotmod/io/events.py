@@ -29,6 +29,7 @@ import dataclasses
 import json
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +43,7 @@ from rotmod.events import EventList, FoldedProfiles
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.io._fits import header_text, open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite
+from rotmod.io.provenance import provenance_cards
 from rotmod.materials import Material
 from rotmod.sky import Attitude
 from rotmod.sky.sources import PointSources
@@ -151,13 +153,18 @@ def _gti_hdu(gti: np.ndarray, header: dict[str, Any]) -> fits.BinTableHDU:
     return hdu
 
 
+def _provenance(meta: dict[str, Any], seed: Any, command: Any) -> list[tuple[str, Any, str]]:
+    """The provenance cards (:func:`rotmod.io.provenance.provenance_cards`) with the names in
+    the metadata."""
+    return provenance_cards(telescop=str(meta.get("telescop", "ROTMOD")),
+                            instrume=str(meta.get("instrume", "RM")), seed=seed,
+                            command=command)
+
+
 def _time_cards(meta: dict[str, Any], t_start: float, t_stop: float, gti: np.ndarray) -> list:
     mjdref = float(meta.get("mjdref", 51544.0))
     ontime = float(np.sum(gti[:, 1] - gti[:, 0]))
     return [
-        ("TELESCOP", header_text(str(meta.get("telescop", "ROTMOD"))), "mission or telescope"),
-        ("INSTRUME", header_text(str(meta.get("instrume", "RM"))), "instrument"),
-        ("CREATOR", header_text(str(meta.get("creator", "rotmod"))), "software"),
         ("TIMESYS", header_text(str(meta.get("timesys", "TT"))), "time system"),
         ("TIMEUNIT", "s", "unit of TIME, TSTART, TSTOP"),
         ("TIMEREF", "LOCAL", "times are not barycentred"),
@@ -174,6 +181,15 @@ def _time_cards(meta: dict[str, Any], t_start: float, t_stop: float, gti: np.nda
         (key.upper(), float(meta[key]), f"[keV] {side} of the energy band folded")
         for key, side in (("e_min", "low edge"), ("e_max", "high edge")) if key in meta
     ]
+
+
+def _primary_provenance(primary: fits.PrimaryHDU, header: Any) -> None:
+    """Copy the provenance cards of a product's table to its primary header (where FITS
+    tools look first)."""
+    for k in ("TELESCOP", "INSTRUME", "CREATOR", "RMCOMMIT", "DATE", "SEED", "COMMAND",
+              "LONGSTRN"):
+        if k in header:
+            primary.header[k] = (header[k], header.comments[k])
 
 
 def _write_atomic(hdul: fits.HDUList, path: str | os.PathLike, overwrite: bool) -> Path:
@@ -208,12 +224,21 @@ def _col(data: Any, name: str, path: Any, ext: str) -> np.ndarray:
     return np.asarray(data[name])
 
 
+def _parse_unit(text: str) -> u.UnitBase:
+    """A unit string in the FITS standard's form (``s-1``, what rotmod writes) or OGIP's
+    (``1/s``, in files rotmod wrote before)."""
+    try:
+        return u.Unit(text, format="fits", parse_strict="raise")
+    except ValueError:
+        return u.Unit(text, format="ogip", parse_strict="raise")
+
+
 def _to_unit(value: Any, declared: str | None, unit: u.UnitBase, what: str, path: Any) -> Any:
     """``value`` in the file's ``declared`` unit (``unit`` when none), converted to ``unit``."""
     if not declared:
         return value
     try:
-        file_unit = u.Unit(declared, format="ogip", parse_strict="raise")
+        file_unit = _parse_unit(declared)
         return u.Quantity(value, file_unit).to_value(unit)
     except (ValueError, u.UnitsError) as exc:
         raise RotmodError(
@@ -336,6 +361,12 @@ def _read_gti(hdul: fits.HDUList, path: Any) -> np.ndarray:
     return np.stack(cols, axis=1).astype(float)
 
 
+def _software(creator: str) -> str:
+    """The software of a ``CREATOR`` card: ``rotmod`` for any version of rotmod (the
+    version is the file's provenance, not the data's metadata)."""
+    return "rotmod" if creator.split(" ")[0] == "rotmod" else creator
+
+
 def _meta_from(header: Any, path: Any) -> dict[str, Any]:
     meta = {
         "telescop": header.get("TELESCOP", "ROTMOD"),
@@ -344,7 +375,7 @@ def _meta_from(header: Any, path: Any) -> dict[str, Any]:
         "mjdref": (_num(header, "MJDREFI", path, "header") if "MJDREFI" in header else 51544.0)
         + (_num(header, "MJDREFF", path, "header") if "MJDREFF" in header else 0.0),
         "timezero": _num(header, "TIMEZERO", path, "header") if "TIMEZERO" in header else 0.0,
-        "creator": header.get("CREATOR", "rotmod"),
+        "creator": _software(str(header.get("CREATOR", "rotmod"))),
     }
     for key in ("E_MIN", "E_MAX"):
         if key in header:
@@ -360,7 +391,8 @@ def _meta_from(header: Any, path: Any) -> dict[str, Any]:
 # --------------------------------------------------------------------------- events
 
 
-def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool = False,
+                 seed: Any = None, command: str | Sequence[str] | None = None) -> Path:
     """Write an event list as a FITS file (see the module notes for the layout).
 
     Parameters
@@ -370,6 +402,10 @@ def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool 
         Output file.
     overwrite : bool
         Replace an existing file (default: refuse).
+    seed : int, SeedSequence or Generator, optional
+        The seed of the simulation that made the events (the ``SEED`` card).
+    command : str or sequence of str, optional
+        The command line or parameters that made the file (the ``COMMAND`` card).
 
     Returns
     -------
@@ -412,7 +448,12 @@ def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool 
         h["RA_PNT"] = (att.ra, "[deg] pointing: rotation axis, RA")
         h["DEC_PNT"] = (att.dec, "[deg] pointing: rotation axis, Dec")
         h["ROLL_PNT"] = (att.roll, "[deg] position angle of the instrument +y axis")
-    for k, v, c in _time_cards(events.meta, events.t_start, events.t_stop, events.gti):
+        h["DEADC"] = (1.0, "dead-time correction: LIVETIME = ONTIME")
+        # No GEOLON/GEOLAT/ALTITUDE: GADF's fixed ground observatory does not describe a
+        # balloon or a satellite, so gammapy's Observation.read refuses these files
+        # (docs/conventions.md says what to use instead).
+    for k, v, c in [*_provenance(events.meta, seed, command),
+                    *_time_cards(events.meta, events.t_start, events.t_stop, events.gti)]:
         h[k] = (v, c)
     for k, v, c in _instrument_cards(events.instrument, events.start_phase):
         h[k] = (v, c)
@@ -424,14 +465,13 @@ def write_events(events: EventList, path: str | os.PathLike, *, overwrite: bool 
                 [
                     fits.Column("THETA", "D", unit="deg", array=s.theta.to_value(u.deg)),
                     fits.Column("PHI", "D", unit="deg", array=s.phi.to_value(u.deg)),
-                    fits.Column("RATE", "D", unit="1/s", array=s.rate),
+                    fits.Column("RATE", "D", unit="s-1", array=s.rate),
                     fits.Column("ENERGY", "D", unit="keV", array=s.energy),
                 ],
                 name="SOURCES",
             )
         )
-    for k in ("TELESCOP", "INSTRUME"):
-        hdus[0].header[k] = h[k]
+    _primary_provenance(hdus[0], h)
     return _write_atomic(fits.HDUList(hdus), path, overwrite)
 
 
@@ -496,7 +536,8 @@ def read_events(path: str | os.PathLike) -> EventList:
 
 
 def write_folded(
-    folded: FoldedProfiles, path: str | os.PathLike, *, overwrite: bool = False
+    folded: FoldedProfiles, path: str | os.PathLike, *, overwrite: bool = False,
+    seed: Any = None, command: str | Sequence[str] | None = None,
 ) -> Path:
     """Write folded count profiles as a FITS ``PROFILES`` table.
 
@@ -510,6 +551,10 @@ def write_folded(
     path : str or path-like
     overwrite : bool
         Replace an existing file (default: refuse).
+    seed : int, SeedSequence or Generator, optional
+        The seed of the simulation behind the counts (the ``SEED`` card).
+    command : str or sequence of str, optional
+        The command line or parameters that made the file (the ``COMMAND`` card).
 
     Returns
     -------
@@ -536,7 +581,8 @@ def write_folded(
     t1 = float(folded.gti[-1, 1])
     # The band goes where the time cards have always written it (E_MIN, E_MAX in keV).
     band = {} if folded.energy_band is None else folded.energy_band.to_dict()
-    for k, v, c in _time_cards({**folded.meta, **band}, t0, t1, folded.gti):
+    for k, v, c in [*_provenance(folded.meta, seed, command),
+                    *_time_cards({**folded.meta, **band}, t0, t1, folded.gti)]:
         h[k] = (v, c)
     for k, v, c in _instrument_cards(folded.instrument, folded.start_phase):
         h[k] = (v, c)
@@ -546,6 +592,7 @@ def write_folded(
     hdus = [
         fits.PrimaryHDU(), tab, _gti_hdu(folded.gti, dict(h)), _detectors_hdu(folded.instrument)
     ]
+    _primary_provenance(hdus[0], h)
     return _write_atomic(fits.HDUList(hdus), path, overwrite)
 
 

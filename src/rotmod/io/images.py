@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,9 +19,24 @@ from astropy.table import Table
 from rotmod.errors import ParameterError
 from rotmod.io._fits import header_text, open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite
+from rotmod.io.provenance import fitting_comment, provenance_cards
 from rotmod.sky.geometry import SkyGeometry, image_from_hdus
 
 __all__ = ["FitsImage", "read_image", "write_image"]
+
+
+#: Comments (OGIP ``[unit]`` first) of the standard cards a caller passes in ``meta``.
+_META_COMMENTS = {
+    "EXPOSURE": "[s] exposure",
+    "ONTIME": "[s] sum of good time intervals",
+    "LIVETIME": "[s] live time",
+    "TSTART": "[s] start of the observation",
+    "TSTOP": "[s] end of the observation",
+    "E_MIN": "[keV] low edge of the energy band",
+    "E_MAX": "[keV] high edge of the energy band",
+    "TELESCOP": "mission or telescope",
+    "INSTRUME": "instrument",
+}
 
 
 def _card_value(v: Any) -> Any:
@@ -72,6 +88,8 @@ def write_image(
     uncertainty: Any = None,
     bunit: str = "ph s-1 pixel-1",
     meta: dict[str, Any] | None = None,
+    seed: Any = None,
+    command: str | Sequence[str] | None = None,
     overwrite: bool = False,
 ) -> Path:
     """Write a reconstruction (or a bare image) as FITS.
@@ -87,7 +105,13 @@ def write_image(
         ``BUNIT`` of the image: the response's sky unit (photon rate per pixel on one
         unobstructed detector face).
     meta : dict, optional
-        Extra header cards (long keys become HIERARCH cards).
+        Extra header cards (long keys become HIERARCH cards); ``TELESCOP``/``INSTRUME``
+        here replace the default ``rotmod``, and the standard ``EXPOSURE`` (s), ``E_MIN``,
+        ``E_MAX`` (keV) carry their unit in the comment.
+    seed : int, SeedSequence or Generator, optional
+        The randomness of the run (the ``SEED`` card).
+    command : str or sequence of str, optional
+        The command line or parameters that made the image (the ``COMMAND`` card).
     overwrite : bool
         Replace an existing file (default False: raise).
 
@@ -129,7 +153,9 @@ def write_image(
             )
     hdus = g.image_hdus(img, unc, bunit)
     hdr = hdus[0].header
-    hdr["ORIGIN"] = "rotmod"
+    hdr["ORIGIN"] = ("rotmod", "organisation or software that made the file")
+    for key, value, comment in provenance_cards(seed=seed, command=command):
+        hdr[key] = (value, comment)
     if result is not None:
         hdr["RECMETH"] = (result.method, "reconstruction method")
         hdr["NITER"] = (int(result.n_iter), "iterations")
@@ -145,7 +171,8 @@ def write_image(
     for k, v in (meta or {}).items():
         # Short names are standard cards (EXPOSURE, E_MIN, E_MAX, TELESCOP, OBS_ID...).
         key = k.upper() if re.fullmatch(r"[A-Za-z0-9_-]{1,8}", k) else f"HIERARCH {k}"
-        hdr[key] = _card_value(v)
+        value = _card_value(v)
+        hdr[key] = (value, fitting_comment(key, value, _META_COMMENTS.get(key, "")))
     if result is not None and result.history:
         t = Table({k: np.asarray(v, dtype=float) for k, v in result.history.items()})
         th = fits.table_to_hdu(t)

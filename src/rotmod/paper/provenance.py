@@ -9,34 +9,15 @@ from __future__ import annotations
 import importlib.metadata
 import os
 import platform
-import subprocess
 import time
-from pathlib import Path
 from typing import Any
 
 import rotmod
+from rotmod.io.provenance import git_commit
 
 __all__ = ["git_commit", "provenance"]
 
 _LIBRARIES = ("numpy", "scipy", "numba", "astropy", "matplotlib", "zarr", "dask", "fisx")
-
-
-def git_commit(start: str | os.PathLike | None = None) -> str | None:
-    """The commit (and ``+dirty`` when the work tree has changes) of the checkout holding
-    ``start`` (default: this package), or None when it is not a git checkout."""
-    where = Path(start) if start is not None else Path(__file__).resolve().parent
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True,
-            timeout=10, check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
-            capture_output=True, text=True, timeout=10, check=True,
-        ).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return f"{sha}+dirty" if dirty else sha or None
 
 
 def _version(name: str) -> str | None:

@@ -17,12 +17,15 @@ from rotmod.errors import ParameterError
 from rotmod.registry import Registry
 from rotmod.sky.geometry import SkyGeometry
 
-__all__ = ["IMAGE_DRAWERS", "plot_comparison", "plot_image"]
+__all__ = ["IMAGE_DRAWERS", "INSTRUMENT_AXIS_LABELS", "plot_comparison", "plot_image"]
 
 #: ``draw(img, grid, sources, ax, cmap) -> (ax, mappable)`` by grid kind: puts the image on
 #: ``ax`` (a new figure's axes of the drawer's choice when None), marks the sources, labels
 #: the axes.
 IMAGE_DRAWERS: Registry[Callable[..., tuple[Any, Any]]] = Registry("grid kind")
+
+#: Axis labels of instrument-frame images: tangent-plane angles, not RA and Dec.
+INSTRUMENT_AXIS_LABELS = ("x, instrument frame (deg)", "y, instrument frame (deg)")
 
 
 def plot_image(
@@ -39,7 +42,8 @@ def plot_image(
 ) -> Any:
     """Show a sky image on its grid with true sources as crosses.
 
-    Instrument-frame grids are drawn in tangent-plane degrees; celestial grids
+    Instrument-frame grids are drawn in tangent-plane degrees of the instrument frame
+    (:data:`INSTRUMENT_AXIS_LABELS`); celestial grids
     (:class:`~rotmod.sky.CelestialGrid`) on WCS axes in RA and Dec, east left; other kinds
     (HEALPix, ...) as one dot per pixel at ``theta (cos phi, sin phi)`` in the instrument
     frame (see :data:`IMAGE_DRAWERS`).
@@ -100,10 +104,11 @@ def _draw_tangent_plane(img: np.ndarray, grid: Any, sources: Any, ax: Any,
         ax.plot(x, y, "+", color="w", ms=10, mew=1.5)
         ax.set_xlim(ext[0], ext[1])
         ax.set_ylim(ext[2], ext[3])
-    # Gnomonic coordinates of the instrument frame, tan(theta) (cos phi, sin phi) in degrees:
-    # not sky positions (those need the pointing; see rotmod.io.images for the WCS).
-    ax.set_xlabel("tangent-plane x (deg)", fontsize=8)
-    ax.set_ylabel("tangent-plane y (deg)", fontsize=8)
+    # Gnomonic coordinates of the instrument frame (tan theta (cos phi, sin phi) in degrees
+    # about the axis), +x to the right as in the image's XLON/XLAT WCS: angles in the
+    # instrument frame, not sky positions (those need the attitude).
+    ax.set_xlabel(INSTRUMENT_AXIS_LABELS[0], fontsize=8)
+    ax.set_ylabel(INSTRUMENT_AXIS_LABELS[1], fontsize=8)
     return ax, im
 
 

@@ -14,8 +14,9 @@ Images have one of two FITS forms:
   :class:`~rotmod.sky.CelestialGrid`): the primary HDU holds the ``(ny, nx)`` image with the
   grid's WCS, an ``UNCERTAINTY`` image extension the uncertainty;
 * a pixel table (every other geometry, e.g. :class:`~rotmod.sky.HealpixGrid`): an empty
-  primary HDU and a binary table with one row per pixel (``INTENSITY``, ``UNCERTAINTY``, and
-  any columns that index the pixels); such geometries have images of shape ``(1, size)``.
+  primary HDU and a binary table with one row per pixel (the values -- ``INTENSITY``, or
+  ``VALUE`` in a HEALPix table --, ``UNCERTAINTY``, and any columns that index the pixels);
+  such geometries have images of shape ``(1, size)``.
 
 A new grid kind is one subclass of :class:`SkyGeometry` (or :class:`WcsGeometry`) with its
 ``kind`` registered in :data:`GRID_KINDS`; storage, FITS images, plots and responses take it
@@ -40,6 +41,12 @@ __all__ = ["GRID_KINDS", "SkyGeometry", "WcsGeometry", "grid_from_dict", "image_
 
 #: Grid classes by :attr:`SkyGeometry.kind`: each registers itself where it is defined.
 GRID_KINDS: Registry[type[SkyGeometry]] = Registry("grid kind")
+
+#: The ``SKYFRAME`` card's comment for each :attr:`SkyGeometry.frame`.
+FRAME_COMMENTS = {
+    "instrument": "axes XLON/XLAT: instrument frame, not RA/Dec",
+    "celestial": "pixels fixed on the sky",
+}
 
 #: The kind of a stored grid description without ``"kind"`` (stores written before the other
 #: kinds existed hold instrument-frame grids).
@@ -120,18 +127,28 @@ class WcsGeometry(SkyGeometry):
                    bunit: str) -> list[Any]:
         """Primary image with the WCS; the uncertainty (if any) as an ``UNCERTAINTY`` image
         with the same WCS."""
-        hdus = [fits.PrimaryHDU(image, header=self.wcs().to_header())]
+        header = self.wcs().to_header()
+        # Which sky the axes measure, said in words too: a reader that knows no WCS still
+        # learns that instrument-frame axes are not RA and Dec.
+        header["SKYFRAME"] = (self.frame, FRAME_COMMENTS[self.frame])
+        hdus = [fits.PrimaryHDU(image, header=header)]
         hdus[0].header["BUNIT"] = (bunit, "sky units of the response")
         if uncertainty is not None:
-            uh = self.wcs().to_header()
+            uh = header.copy()
             uh["BUNIT"] = bunit
             uh["EXTNAME"] = "UNCERTAINTY"
             hdus.append(fits.ImageHDU(uncertainty, header=uh, name="UNCERTAINTY"))
         return hdus
 
 
+#: Names of the value column of a pixel table: rotmod's, then the HEALPix ``SPARSE`` one
+#: (gammapy's convention, which rotmod's HEALPix images follow).
+VALUE_COLUMNS = ("INTENSITY", "VALUE")
+
+
 def pixel_table_hdus(image: np.ndarray, uncertainty: np.ndarray | None, bunit: str, *,
-                     name: str = "PIXELS", index: Any = None) -> list[Any]:
+                     name: str = "PIXELS", index: Any = None,
+                     value: str = "INTENSITY") -> list[Any]:
     """An empty primary HDU and a table of one row per pixel (the pixel-table form).
 
     Parameters
@@ -143,16 +160,19 @@ def pixel_table_hdus(image: np.ndarray, uncertainty: np.ndarray | None, bunit: s
     name : str
         ``EXTNAME`` of the table.
     index : (str, array_like), optional
-        A first column of explicit integer pixel indices (``("PIXEL", pixels)`` for HEALPix).
+        A first column of explicit integer pixel indices (``("PIX", pixels)`` for HEALPix).
+    value : str
+        Name of the value column, one of :data:`VALUE_COLUMNS`.
     """
     primary = fits.PrimaryHDU()
     primary.header["BUNIT"] = (bunit, "sky units of the response")
     cols = []
     if index is not None:
         cols.append(fits.Column(index[0], "K", array=np.asarray(index[1], dtype=np.int64)))
-    cols.append(fits.Column("INTENSITY", "D", unit=bunit, array=np.ravel(image)))
+    cols.append(fits.Column(value, "D", unit=bunit, array=np.ravel(image)))
     if uncertainty is not None:
         cols.append(fits.Column("UNCERTAINTY", "D", unit=bunit, array=np.ravel(uncertainty)))
+    # The unit is the columns' TUNIT: the FITS standard allows no BUNIT in a table.
     return [primary, fits.BinTableHDU.from_columns(cols, name=name)]
 
 
@@ -178,13 +198,16 @@ def image_from_hdus(hdul: fits.HDUList, source: str = "file") -> tuple[
                else None)
         return img, unc, WCS(primary.header)
     for hdu in hdul[1:]:
-        if isinstance(hdu, fits.BinTableHDU) and "INTENSITY" in hdu.columns.names:
+        names = hdu.columns.names if isinstance(hdu, fits.BinTableHDU) else []
+        value = next((c for c in VALUE_COLUMNS if c in names), None)
+        if value is not None:
             data = hdu.data
             unc = (np.array(data["UNCERTAINTY"], dtype=float)[None, :]
-                   if "UNCERTAINTY" in hdu.columns.names else None)
-            return np.array(data["INTENSITY"], dtype=float)[None, :], unc, None
+                   if "UNCERTAINTY" in names else None)
+            return np.array(data[value], dtype=float)[None, :], unc, None
     raise ParameterError(
-        f"path {source!r} has no 2-D primary image and no pixel table (an INTENSITY column)")
+        f"path {source!r} has no 2-D primary image and no pixel table (a column named "
+        f"{' or '.join(VALUE_COLUMNS)})")
 
 
 def grid_from_dict(d: dict[str, Any]) -> SkyGeometry:

@@ -1,8 +1,10 @@
 """Square tangent-plane (gnomonic) sky grids in the instrument frame, tangent anywhere.
 
-The instrument frame is drawn on the sky as if the pointing axis (lab +z) were at
-RA = Dec = 0 with the lab +x axis toward +RA and +y toward +Dec, i.e. a lab vector
-``(x, y, z)`` is the celestial vector ``(X, Y, Z) = (z, x, y)``.  By default the projection is
+The instrument frame is drawn on a sphere of its own, longitude and latitude (``XLON``,
+``XLAT`` in FITS), with the pointing axis (lab +z) at ``(0, 0)``, the lab +x axis toward +XLON
+and +y toward +XLAT, i.e. a lab vector ``(x, y, z)`` is the spherical vector
+``(X, Y, Z) = (z, x, y)`` (these are RA/Dec-like coordinates, but of the instrument, not of
+the sky: images say so in their WCS, :meth:`SkyGrid.wcs`).  By default the projection is
 tangent at the axis: a direction at zenith ``theta`` and azimuth ``phi`` has tangent-plane
 coordinates (degrees)
 
@@ -11,7 +13,7 @@ coordinates (degrees)
 A grid may instead be tangent at any direction ``(theta0, phi0)`` (``tangent=``), e.g. the
 centre of a field 48 deg off axis, where an axis-tangent grid would stretch its pixels by
 ``1/cos^2 theta0`` radially.  With ``n0`` the tangent direction and ``e_x``, ``e_y`` the unit
-vectors toward +RA and +Dec there, the pixel at tangent-plane coordinates ``(x, y)`` (rad)
+vectors toward +XLON and +XLAT there, the pixel at tangent-plane coordinates ``(x, y)`` (rad)
 looks along ``n0 + x e_x + y e_y`` (the re-centred gnomonic projection).  These are exactly
 the FITS ``TAN`` intermediate world coordinates about ``CRVAL`` = the tangent point, so the
 WCS written with the images places every pixel where the response computed it (tested
@@ -33,7 +35,13 @@ from rotmod.errors import ParameterError
 from rotmod.limits import check_memory
 from rotmod.sky.geometry import GRID_KINDS, WcsGeometry
 
-__all__ = ["SkyGrid"]
+__all__ = ["INSTRUMENT_LAT", "INSTRUMENT_LON", "INSTRUMENT_WCSNAME", "SkyGrid"]
+
+#: CTYPE prefixes of the instrument frame's longitude and latitude (FITS user-defined
+#: ``xLON``/``xLAT`` pair): non-celestial spherical axes.
+INSTRUMENT_LON, INSTRUMENT_LAT = "XLON", "XLAT"
+#: WCSNAME of instrument-frame images.
+INSTRUMENT_WCSNAME = "rotmod instrument frame"
 
 
 @dataclass(frozen=True)
@@ -90,18 +98,19 @@ class SkyGrid(WcsGeometry):
             raise ParameterError(f"grid extends beyond theta = {half:.2f} deg; shrink it")
 
     def _basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Lab unit vectors ``n0`` (the tangent point), ``e_x`` (+RA) and ``e_y`` (+Dec) there."""
+        """Lab unit vectors ``n0`` (the tangent point), ``e_x`` (+XLON) and ``e_y`` (+XLAT)
+        there."""
         n0 = source_direction(*np.radians(self.tangent))
         ra0, dec0 = self._tangent_radec()
         ra0, dec0 = np.radians(ra0), np.radians(dec0)
-        # Celestial (X, Y, Z) = lab (z, x, y): +RA = (-sin a, cos a, 0), +Dec = (-sin d cos a,
-        # -sin d sin a, cos d) in celestial axes.
+        # Spherical (X, Y, Z) = lab (z, x, y): +XLON = (-sin a, cos a, 0), +XLAT = (-sin d
+        # cos a, -sin d sin a, cos d) in spherical axes.
         ex = np.array([np.cos(ra0), 0.0, -np.sin(ra0)])
         ey = np.array([-np.sin(dec0) * np.sin(ra0), np.cos(dec0), -np.sin(dec0) * np.cos(ra0)])
         return n0, ex, ey
 
     def _tangent_radec(self) -> tuple[float, float]:
-        """The tangent point in the instrument frame's sky coordinates (deg)."""
+        """The tangent point in the instrument frame's longitude and latitude (deg)."""
         x, y, z = source_direction(*np.radians(self.tangent))
         return float(np.degrees(np.arctan2(x, z))), float(np.degrees(np.arcsin(y)))
 
@@ -174,10 +183,20 @@ class SkyGrid(WcsGeometry):
         return theta * u.rad, phi * u.rad
 
     def wcs(self) -> WCS:
-        """An `astropy.wcs.WCS` (TAN) for images on this grid (see module notes)."""
+        """An `astropy.wcs.WCS` (TAN) for images on this grid (see module notes).
+
+        The axes are ``XLON-TAN``/``XLAT-TAN``, a user-defined spherical coordinate pair of
+        the FITS standard (Calabretta & Greisen 2002, sec. 2), named ``WCSNAME = 'rotmod
+        instrument frame'``: longitude and latitude of the instrument frame drawn on the
+        sphere, with no ``RADESYS`` -- not RA and Dec, so astropy, ds9 and gammapy do not
+        place the image on the celestial sky (an instrument-frame image has no sky position
+        without the attitude; :class:`~rotmod.sky.CelestialGrid` images have one).  Longitude
+        increases with ``+x`` (``CDELT1 > 0``: lab +x to the right, +y up).
+        """
         ny, nx = self.shape
         w = WCS(naxis=2)
-        w.wcs.ctype = ["RA---TAN", "DEC--TAN"]
+        w.wcs.ctype = [f"{INSTRUMENT_LON}-TAN", f"{INSTRUMENT_LAT}-TAN"]
+        w.wcs.name = INSTRUMENT_WCSNAME
         w.wcs.cunit = ["deg", "deg"]
         w.wcs.crval = list(self._tangent_radec())
         w.wcs.cdelt = [self.pixel_size, self.pixel_size]

@@ -122,15 +122,28 @@ class HealpixGrid(SkyGeometry):
 
     def image_hdus(self, image: np.ndarray, uncertainty: np.ndarray | None,
                    bunit: str) -> list[Any]:
-        """A HEALPix FITS table with explicit indexing (the convention healpy and gammapy
-        read): columns ``PIXEL``, ``INTENSITY`` and ``UNCERTAINTY`` (if given)."""
+        """A partial-sky HEALPix FITS table that gammapy, healpy and astropy-healpix read.
+
+        Columns ``PIX`` (the HEALPix index), ``VALUE`` and ``UNCERTAINTY`` (if given), one
+        row per pixel of the cone; the header names the convention for each reader:
+        ``HPX_CONV = 'GADF'`` and ``INDXSCHM = 'SPARSE'`` (gammapy's ``Map.read``: an all-sky
+        map holding these pixels, zero elsewhere), ``OBJECT = 'PARTIAL'`` (healpy's
+        ``read_map``: the first column is the pixel index, ``UNSEEN`` elsewhere), and
+        ``PIXTYPE``, ``ORDERING``, ``NSIDE``/``ORDER``, ``FIRSTPIX``/``LASTPIX``,
+        ``COORDSYS = 'C'`` (ICRS) for all of them.  Files written before (``PIXEL``,
+        ``INTENSITY`` columns, ``INDXSCHM = 'EXPLICIT'``) still read in rotmod.
+        """
         hdus = pixel_table_hdus(image, uncertainty, bunit, name="HEALPIX",
-                                index=("PIXEL", self.pixels))
+                                index=("PIX", self.pixels), value="VALUE")
         h = hdus[1].header
         h["PIXTYPE"] = ("HEALPIX", "HEALPix pixelisation")
         h["ORDERING"] = (self.order.upper(), "pixel ordering scheme")
         h["NSIDE"] = (self.nside, "HEALPix resolution parameter")
-        h["INDXSCHM"] = ("EXPLICIT", "pixel indices in the PIXEL column")
+        h["ORDER"] = (self.nside.bit_length() - 1, "NSIDE = 2**ORDER")
+        h["FIRSTPIX"] = (0, "first pixel index of the sphere")
+        h["LASTPIX"] = (12 * self.nside**2 - 1, "last pixel index of the sphere")
+        h["INDXSCHM"] = ("SPARSE", "pixel indices in the PIX column")
+        h["HPX_CONV"] = ("GADF", "HEALPix FITS convention of gamma-astro-data")
         h["OBJECT"] = ("PARTIAL", "a cone, not the whole sky")
         h["COORDSYS"] = ("C", "celestial (ICRS)")
         return hdus

@@ -14,10 +14,11 @@ from typing import Any
 
 import rotmod
 from rotmod.io.provenance import git_commit
+from rotmod.materials import database_provenance
 
 __all__ = ["git_commit", "provenance"]
 
-_LIBRARIES = ("numpy", "scipy", "numba", "astropy", "matplotlib", "zarr", "dask", "fisx")
+_LIBRARIES = ("numpy", "scipy", "numba", "astropy", "matplotlib", "zarr", "dask")
 
 
 def _version(name: str) -> str | None:
@@ -35,6 +36,8 @@ def provenance(seed: int | None = None) -> dict[str, Any]:
         "seed": seed,
         "python": platform.python_version(),
         "libraries": {name: _version(name) for name in _LIBRARIES},
+        # The attenuation tables ship with rotmod: where they were taken from.
+        "attenuation_data": database_provenance(),
         "machine": {
             "platform": platform.platform(),
             "processor": platform.machine(),

@@ -1,8 +1,9 @@
 """Optional dependencies: imported on first use, with an error that says what to install.
 
 rotmod's core install is what every command needs (numpy, scipy, numba, astropy, matplotlib,
-zarr, dask, tqdm, jinja2, ...; all installed from wheels).  Features that only some users want live in extras
-(``pip install "rotmod[yaml]"``, ``"rotmod[distributed]"``, ``"rotmod[all]"``).
+zarr, dask, tqdm, jinja2, ...; all installed from wheels).  Features that only some users
+want live in extras (``pip install "rotmod[yaml]"``, ``"rotmod[distributed]"``,
+``"rotmod[all]"``).
 """
 
 from __future__ import annotations

@@ -326,3 +326,16 @@ def test_healpix_wide_field_images(wide, tmp_path) -> None:
     # PIXEL column before: tests/io/test_images.py checks those files still read).
     assert t.meta["NSIDE"] == 32 and t.meta["INDXSCHM"] == "SPARSE"
     np.testing.assert_array_equal(t["PIX"], grid.pixels)
+
+
+def test_a_grid_around_a_skycoord_in_any_frame() -> None:
+    from astropy.coordinates import SkyCoord
+
+    att = Attitude(83.6, 22.0, 0.0)
+    crab = SkyCoord(184.5575438, -5.7843130, unit="deg", frame="galactic")
+    grid = CelestialGrid.around(crab, (5, 5), 0.5, att)
+    # The centre pixel is the source: the galactic position taken to ICRS.
+    assert grid.sky_coords()[12].separation(crab).to_value("arcsec") < 1e-6
+    assert grid == CelestialGrid((5, 5), 0.5, crab.icrs.ra, crab.icrs.dec, att)
+    with pytest.raises(ParameterError, match="center must be one astropy SkyCoord"):
+        CelestialGrid.around((83.6, 22.0), (5, 5), 0.5, att)

@@ -73,6 +73,21 @@ class CelestialGrid(WcsGeometry):
         check_memory(6 * 8.0 * nx * ny, f"a celestial grid of {ny} x {nx} pixels",
                      hint="use larger pixels or a smaller field")
 
+    @classmethod
+    def around(cls, center: SkyCoord, shape: tuple[int, int], pixel_size: Any,
+               attitude: Attitude) -> CelestialGrid:
+        """The grid centred on ``center``, a SkyCoord in any frame (taken to ICRS).
+
+        Raises
+        ------
+        ParameterError
+            ``center`` is not one SkyCoord, or a field is invalid.
+        """
+        if not isinstance(center, SkyCoord) or not center.isscalar:
+            raise ParameterError(f"center must be one astropy SkyCoord, got {center!r}")
+        icrs = center.icrs
+        return cls(shape, pixel_size, icrs.ra, icrs.dec, attitude)
+
     @property
     def size(self) -> int:
         """Number of pixels ``n_sky``."""

@@ -24,11 +24,12 @@ invalid parameter: one ``rotmod: error: ...`` line on stderr); 1 an unexpected f
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from rotmod import __version__
 from rotmod.errors import RotmodError
@@ -106,23 +107,27 @@ def _command_of(argv: Sequence[str]) -> str:
     return next((a for a in argv if not a.startswith("-")), "")
 
 
-class _CliHandler(logging.StreamHandler):
-    """The command line's handler of the ``rotmod`` logger (replaced on each run)."""
-
-
-def setup_logging(verbose: int = 0, quiet: bool = False) -> None:
-    """Log ``rotmod`` messages to stderr with a timestamp: info by default (progress lines
-    and notes), debug with ``-v``, warnings only with ``--quiet``."""
+@contextlib.contextmanager
+def cli_logging(verbose: int = 0, quiet: bool = False) -> Iterator[None]:
+    """Log ``rotmod`` messages to stderr with a timestamp while a command runs: info by
+    default (progress lines, notes, warnings), debug with ``-v``, warnings only with
+    ``--quiet``.  The handler and level are undone on exit, so that calling :func:`main` in
+    a process (tests, notebooks) leaves its logging as it was."""
     level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
     logger = logging.getLogger("rotmod")
-    for h in [h for h in logger.handlers if isinstance(h, _CliHandler)]:
-        logger.removeHandler(h)
-    handler = _CliHandler(sys.stderr)  # the current stderr (a test may have replaced it)
+    handler = logging.StreamHandler(sys.stderr)  # the current stderr (a test may replace it)
     handler.setFormatter(logging.Formatter("%(asctime)s rotmod: %(levelname)s: %(message)s",
                                            datefmt="%Y-%m-%dT%H:%M:%S"))
+    old_level, old_propagate = logger.level, logger.propagate
     logger.addHandler(handler)
     logger.setLevel(level)
     logger.propagate = False  # one line per message, not another from a root handler
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+        logger.propagate = old_propagate
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -148,9 +153,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_USER
-    setup_logging(args.verbose, args.quiet)
     try:
-        return int(args.func(args) or EXIT_OK)
+        with cli_logging(args.verbose, args.quiet):
+            return int(args.func(args) or EXIT_OK)
     except KeyboardInterrupt:
         print("rotmod: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

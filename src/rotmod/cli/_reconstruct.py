@@ -95,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
     if n_time != folded.n_bins:
         raise UserError(
             f"RESPONSE {str(rsp)!r} has {n_time} time bins (mask-angle bins per rotation) "
-            f"but FOLDED {str(src)!r} has {folded.n_bins}: they must be equal; fold with --bins {n_time} or rebuild the "
-            f"response with --bins {folded.n_bins}"
+            f"but FOLDED {str(src)!r} has {folded.n_bins}: they must be equal; fold with "
+            f"--bins {n_time} or rebuild the response with --bins {folded.n_bins}"
         )
     warn_if_mirror_degenerate(folded.instrument, "rotmod reconstruct")
     response = open_response(rsp, instrument=folded.instrument)

@@ -175,3 +175,22 @@ def test_top_level_help_imports_no_science() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip().splitlines()[-1] == "[]"
+
+
+def test_the_mirror_rule_behind_the_warning() -> None:
+    """The half turn about the axis maps the mask to itself, a source at (theta, phi) to
+    (theta, phi + 180) and a detector at r to -r: an axis detector sees both alike; the
+    prototype's point-symmetric array sees the mirror with its detectors swapped."""
+    from rotmod.cli._common import mirror_degenerate
+    from rotmod.io import load_instrument
+    from rotmod.profiles import get_model
+
+    xi = np.arange(0.0, 360.0, 4.0)
+    for name, degenerate in (("paper", True), ("prototype", False)):
+        inst = load_instrument(name)
+        assert mirror_degenerate(inst) is degenerate
+        p = get_model("exact").profile(inst, [6.0, 6.0], [30.0, 210.0], xi, 122.0)
+        pos = np.asarray(inst.detectors.positions, dtype=float)
+        partner = [int(np.argmin(np.hypot(*(pos + r).T))) for r in pos]  # the one at -r
+        np.testing.assert_allclose(p[:, :, 0], p[partner, :, 1], atol=1e-12)
+        assert (np.abs(p[:, :, 0] - p[:, :, 1]).max() < 1e-12) is degenerate

@@ -53,17 +53,23 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "reproduce": ("_reproduce", "regenerate the seed paper's results with an HTML report"),
 }
 
+#: Why detectors on the rotation axis image a source and its mirror alike (docs/cli.md).
+MIRROR_NOTE = (
+    "Mirror sources: the mask looks the same after a half turn about the rotation axis, "
+    "which takes a source at (theta, phi) to its mirror at (theta, phi + 180 deg) and a "
+    "detector at r to -r. A detector on the axis goes to itself and records the same "
+    "profile for both, so an instrument whose detectors all sit on the axis (the 'paper' "
+    "preset) cannot tell them apart, and the commands warn. An array with detectors off the "
+    "axis (the 'prototype' preset) can, even a point-symmetric one: the mirror seen by the "
+    "detector at r is the source seen by the detector at -r, and the folded data keep the "
+    "detectors apart."
+)
+
 _EPILOG = (
     "Run 'rotmod COMMAND --help' for the options of a command; instruments are TOML files or "
     "presets (listed there). A chain: rotmod simulate -i prototype ... -o events.fits; rotmod "
     "fold events.fits -o folded.fits; rotmod response -i prototype ... -o response.zarr; "
-    "rotmod reconstruct folded.fits response.zarr -o image.fits. "
-    "Mirror sources: an instrument whose detectors all sit on the rotation axis (the 'paper' "
-    "preset) cannot tell a source at (theta, phi) from its mirror at (theta, phi + 180 deg), "
-    "because the mask is symmetric under a half turn about the axis; an array with detectors "
-    "off the axis (the 'prototype' preset) can, even a point-symmetric one, since the half "
-    "turn swaps its detectors and the folded data keep them apart. The commands warn when "
-    "the instrument is degenerate."
+    f"rotmod reconstruct folded.fits response.zarr -o image.fits. {MIRROR_NOTE}"
 )
 
 

@@ -38,18 +38,6 @@ BINS_HELP = (f"mask-angle bins per rotation (default {DEFAULT_BINS}: one per deg
              "in rotmod fold and rotmod response so that their files chain; the seed paper "
              "used 560)")
 
-#: Why a single on-axis detector images a source and its mirror alike (help and warnings).
-MIRROR_NOTE = (
-    "An instrument whose detectors all sit on the rotation axis (the 'paper' preset: one "
-    "detector) cannot tell a source at (theta, phi) from its mirror at (theta, phi + 180 "
-    "deg): the mask is symmetric under a half turn about the axis, which maps the source to "
-    "its mirror and an axis detector to itself, so both give the same profile.  An array "
-    "with detectors off the axis (the 'prototype' preset) breaks the tie even when it is "
-    "point-symmetric: the half turn maps the mirror seen by the detector at r to the source "
-    "seen by the detector at -r, a different profile in the folded data (the tie returns "
-    "only as the offsets shrink to nothing against the mask's slat period)."
-)
-
 
 class UserError(RotmodError):
     """A mistake on the command line that argparse cannot see (bad file, bad combination)."""
@@ -220,6 +208,16 @@ def iteration_bar(enabled: bool, desc: str) -> Any:
     if not enabled:
         return contextlib.nullcontext(None)
     return Progress(None, desc, "it")
+
+
+def heartbeat(args: argparse.Namespace, desc: str, total: int | None = None,
+              unit: str = "it") -> Any:
+    """Progress of a step that reports little or nothing (a drift response, a Radon table,
+    the first call that compiles numba kernels): log lines every few seconds, on a terminal
+    too, since a bar would stand still (a null context with ``--no-progress``/``--quiet``)."""
+    if not progress_wanted(args):
+        return contextlib.nullcontext(None)
+    return Progress(total, desc, unit, tty=False)
 
 
 def progress_wanted(args: argparse.Namespace) -> bool:

@@ -9,7 +9,6 @@ megabytes instead of ``n_det n_time n_sky`` values.  ``rotmod reconstruct`` open
 from __future__ import annotations
 
 import argparse
-import contextlib
 from typing import Any
 
 from rotmod.cli._common import (
@@ -25,6 +24,7 @@ from rotmod.cli._common import (
     check_output,
     count,
     energy_of,
+    heartbeat,
     intervals_of,
     load_config,
     parse_radec,
@@ -37,7 +37,6 @@ from rotmod.cli._common import (
 from rotmod.profiles import DEFAULT_MODEL, MODELS
 from rotmod.response import RadonResponse, TimeBinning, save_response, write_response
 from rotmod.response.drift import drift_response
-from rotmod.response.parallel import Progress
 from rotmod.sky import Attitude, AttitudeTable, CelestialGrid, HealpixGrid, SkyGeometry, SkyGrid
 
 
@@ -177,11 +176,7 @@ def run(args: argparse.Namespace) -> int:
         f"{grid.size} pixels ({args.grid} grid {grid.shape[1]}x{grid.shape[0]}), "
         f"{energy:g} keV{drift}{', scheduler ' + args.scheduler if args.scheduler else ''}")
     if intervals is not None:
-        # drift_response reports no steps, so a bar would stand still: on a terminal too, the
-        # log lines (tty=False) say every few seconds that it is still working.
-        heartbeat = (Progress(None, "drift response", "piece", tty=False)
-                     if progress_wanted(args) else contextlib.nullcontext())
-        with heartbeat:
+        with heartbeat(args, "drift response"):  # drift_response reports no steps
             op = drift_response(inst, grid, bins, intervals, args.model, energy,
                                 dtype=args.dtype, operator=args.operator,
                                 tolerance=args.tolerance)
@@ -190,8 +185,9 @@ def run(args: argparse.Namespace) -> int:
             f"exposure-weighted over {len(intervals)} attitude pieces)")
         return 0
     if args.operator == "radon":
-        radon = RadonResponse(inst, grid, bins, energy, tolerance=args.tolerance,
-                              dtype=args.dtype)
+        with heartbeat(args, "Radon table"):
+            radon = RadonResponse(inst, grid, bins, energy, tolerance=args.tolerance,
+                                  dtype=args.dtype)
         save_response(out, radon, overwrite=args.overwrite)
         j, kr = radon.table.shape
         say(f"rotmod: wrote {out} (Radon table {j} x {kr}, tolerance {args.tolerance:g})")

@@ -21,6 +21,7 @@ from rotmod.cli._common import (
     check_output,
     count,
     energy_of,
+    heartbeat,
     intervals_of,
     load_config,
     parse_radec,
@@ -117,10 +118,8 @@ def run(args: argparse.Namespace) -> int:
     if isinstance(att, AttitudeTable):
         intervals = intervals_of(att, 0.0, args.exposure, args.max_step)
         coords = SkyCoord([s[0] for s in sky] * u.deg, [s[1] for s in sky] * u.deg)
-        # Log lines (tty=False) even on a terminal: the pieces are few and the first one
-        # compiles the kernels, so a bar would stand still.
-        with (Progress(len(intervals), "MC observation", "piece", tty=False) if want
-              else contextlib.nullcontext()) as bar:
+        # The pieces are few and the first one compiles the kernels: log lines, not a bar.
+        with heartbeat(args, "MC observation", len(intervals), "piece") as bar:
             events = simulate_drift(
                 inst, coords, intervals, rate=[s[2] for s in sky], energy=energy,
                 background=args.background, seed=args.seed, meta=meta,

@@ -153,12 +153,20 @@ def get_client(scheduler: str | None = None, client: Any = None) -> Iterator[Any
 PROGRESS_INTERVAL = 5.0
 
 
+def _interactive() -> bool:
+    """Whether a progress bar is seen: stderr is a terminal, or a Jupyter kernel (whose
+    stderr is no TTY but shows tqdm's widget) imported this process's code."""
+    return sys.stderr.isatty() or "ipykernel" in sys.modules
+
+
 class Progress:
     """Progress of ``total`` steps: a tqdm bar on a terminal, log lines everywhere else.
 
-    On a terminal (stderr is a TTY) it draws a tqdm bar.  Off a terminal (a log file, a batch
-    job) a bar would be a wall of carriage returns, so it logs ``desc: done/total (pct),
-    elapsed`` on :data:`log` at INFO every ``interval`` seconds instead, from a daemon thread:
+    On a terminal (stderr is a TTY) or in a Jupyter kernel it draws a tqdm bar.  Off a
+    terminal (a log file, a batch job) a bar would be a wall of carriage returns, so it logs
+    ``desc: done/total (pct), elapsed`` on the ``rotmod.response.parallel`` logger at INFO
+    every ``interval`` seconds instead (configure :mod:`logging` to see them; the command
+    line does), from a daemon thread:
     the line comes even while no step completes (numba compiling the first kernel can take
     minutes), so a long job is never silent.  The first line comes after ``interval``
     seconds, so short work logs nothing.
@@ -178,8 +186,8 @@ class Progress:
     interval : float
         Seconds between log lines off a terminal.
     tty : bool, optional
-        Force the terminal (``True``) or log (``False``) behaviour; default
-        ``sys.stderr.isatty()``.
+        Force the bar (``True``) or the log lines (``False``); default a bar when stderr is
+        a TTY or the code runs in a Jupyter kernel.
     """
 
     def __init__(self, total: int | None, desc: str, unit: str = "it", *,
@@ -190,7 +198,7 @@ class Progress:
         self._stop = threading.Event()
         self._bar: Any = None
         self._thread: threading.Thread | None = None
-        if sys.stderr.isatty() if tty is None else tty:
+        if _interactive() if tty is None else tty:
             from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
 
             self._bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)

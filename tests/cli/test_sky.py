@@ -193,4 +193,4 @@ def test_the_mirror_rule_behind_the_warning() -> None:
         pos = np.asarray(inst.detectors.positions, dtype=float)
         partner = [int(np.argmin(np.hypot(*(pos + r).T))) for r in pos]  # the one at -r
         np.testing.assert_allclose(p[:, :, 0], p[partner, :, 1], atol=1e-12)
-        assert (np.abs(p[:, :, 0] - p[:, :, 1]).max() < 1e-12) is degenerate
+        assert bool(np.abs(p[:, :, 0] - p[:, :, 1]).max() < 1e-12) is degenerate

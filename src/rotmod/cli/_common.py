@@ -107,7 +107,7 @@ def add_attitude(p: argparse.ArgumentParser) -> None:
                    "of a drifting observation")
     g.add_argument("--pointing", default=None, metavar="RA,DEC",
                    help="fixed pointing of the rotation axis (ICRS, deg)")
-    p.add_argument("--roll", type=quantity("deg"), default=0.0, metavar="DEG",
+    p.add_argument("--roll", type=quantity("deg"), default=None, metavar="DEG",
                    help="with --pointing: position angle (east of north) of the instrument's "
                    "+y axis (deg; default 0)")
     p.add_argument("--max-step", type=quantity("s"), default=60.0, metavar="SECONDS",
@@ -116,10 +116,13 @@ def add_attitude(p: argparse.ArgumentParser) -> None:
 
 def attitude_of(args: argparse.Namespace) -> Attitude | AttitudeTable | None:
     """The ``--attitude`` table or the fixed ``--pointing``/``--roll`` (``None``: neither)."""
+    if args.roll is not None and args.pointing is None:
+        raise UserError(f"--roll: goes with --pointing (an --attitude table has its own roll), "
+                        f"got --roll {args.roll:g} without it")
     if args.attitude is not None:
         return AttitudeTable.read(check_input(args.attitude, "--attitude"))
     if args.pointing is not None:
-        return Attitude(*parse_radec(args.pointing, "--pointing"), args.roll)
+        return Attitude(*parse_radec(args.pointing, "--pointing"), args.roll or 0.0)
     return None
 
 

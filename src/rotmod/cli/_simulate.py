@@ -86,7 +86,7 @@ def parse_sky_source(text: str) -> tuple[float, float, float]:
     ra, dec = parse_radec(",".join(parts[:2]), "--sky-source")
     try:
         rate = to_number(parts[2], "1/s") if len(parts) == 3 else DEFAULT_RATE
-    except Exception as exc:
+    except argparse.ArgumentTypeError as exc:
         raise UserError(f"--sky-source: RATE: {exc}, in {text!r}") from None
     if rate < 0:
         raise UserError(f"--sky-source: rate must be >= 0 photons/s, got {rate:g}")

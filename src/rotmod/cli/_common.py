@@ -207,10 +207,11 @@ def energy_of(args: argparse.Namespace, cfg: Any) -> float:
 
 def iteration_bar(enabled: bool, desc: str) -> Any:
     """A :class:`~rotmod.response.parallel.Progress` of iterations of unknown total (a
-    null context when disabled)."""
+    null context when disabled).  A command line draws bars only on a terminal: run from
+    a notebook or a script, it logs lines like any batch job."""
     if not enabled:
         return contextlib.nullcontext(None)
-    return Progress(None, desc, "it")
+    return Progress(None, desc, "it", tty=sys.stderr.isatty())
 
 
 def heartbeat(args: argparse.Namespace, desc: str, total: int | None = None,
@@ -385,7 +386,7 @@ def use_agg() -> None:
 def tqdm_progress(total: int, desc: str, unit: str = "it") -> tuple[Callable, Callable]:
     """A ``(update(done, total), close())`` pair: a bar on a terminal, log lines elsewhere
     (:class:`~rotmod.response.parallel.Progress`)."""
-    bar = Progress(total, desc, unit)
+    bar = Progress(total, desc, unit, tty=sys.stderr.isatty())
     return bar.update_to, bar.close
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import sys
 from typing import Any
 
 import astropy.units as u
@@ -137,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
                 [s[2] for s in sky]])])
         theta, phi, rate = src.T
         sources = PointSources(theta, phi, rate, energy)  # deg
-        with (Progress(None, "MC observation", "ms") if want
+        with (Progress(None, "MC observation", "ms", tty=sys.stderr.isatty()) if want
               else contextlib.nullcontext()) as bar:
             events = simulate_observation(
                 inst, sources, t_stop=args.exposure, background=args.background,

@@ -142,6 +142,13 @@ def make_grid(args: argparse.Namespace, attitude: Attitude | None) -> SkyGeometr
     return CelestialGrid((n, n), args.pixel, ra, dec, attitude)
 
 
+def _shape(args: argparse.Namespace, grid: SkyGeometry) -> str:
+    """The grid in words: ``celestial grid 12x12`` or ``healpix grid nside 128``."""
+    if isinstance(grid, HealpixGrid):
+        return f"healpix grid nside {grid.nside} within {grid.radius:g} deg"
+    return f"{args.grid} grid {grid.shape[1]}x{grid.shape[0]}"
+
+
 def run(args: argparse.Namespace) -> int:
     args.model = registered(MODELS, args.model or DEFAULT_MODEL, "--model")
     out = check_output(args.output, args.overwrite)
@@ -173,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
     kind = "radon (exact)" if args.operator == "radon" else args.model
     drift = f", {len(intervals)} attitude pieces" if intervals else ""
     say(f"rotmod: response {kind}: {len(inst.detectors)} detector(s) x {args.bins} bins x "
-        f"{grid.size} pixels ({args.grid} grid {grid.shape[1]}x{grid.shape[0]}), "
+        f"{grid.size} pixels ({_shape(args, grid)}), "
         f"{energy:g} keV{drift}{', scheduler ' + args.scheduler if args.scheduler else ''}")
     if intervals is not None:
         with heartbeat(args, "drift response"):  # drift_response reports no steps

@@ -10,6 +10,12 @@
     rotmod design      mask design trade-off (Pareto front)
     rotmod reproduce   regenerate the seed paper's results with an HTML report
 
+The top-level parser imports no science: each subcommand's module (which imports what its
+options need) is imported only when that subcommand runs or shows its help, so ``rotmod
+--help`` stays fast.  Logging goes to stderr with timestamps (``-v`` debug, ``-q`` warnings
+only); long work reports progress there (a bar on a terminal, a line every few seconds
+elsewhere).
+
 Exit codes: 0 success; 2 a usage error or a user error (bad option, bad or missing file,
 invalid parameter: one ``rotmod: error: ...`` line on stderr); 1 an unexpected failure
 (a traceback, which is a bug to report); 130 interrupted.
@@ -18,22 +24,14 @@ invalid parameter: one ``rotmod: error: ...`` line on stderr); 1 an unexpected f
 from __future__ import annotations
 
 import argparse
+import contextlib
+import importlib
 import logging
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from rotmod import __version__
-from rotmod.cli import (
-    _design,
-    _fold,
-    _profile,
-    _reconstruct,
-    _reproduce,
-    _response,
-    _simulate,
-)
-from rotmod.cli._common import UserError
 from rotmod.errors import RotmodError
 
 __all__ = ["build_parser", "main"]
@@ -43,27 +41,99 @@ EXIT_UNEXPECTED = 1
 EXIT_USER = 2
 EXIT_INTERRUPTED = 130
 
-_SUBCOMMANDS = (_profile, _simulate, _fold, _response, _reconstruct, _design, _reproduce)
+#: Subcommand -> (module in this package, one-line help).  The modules are imported lazily
+#: (importlib, same package): the science stack loads only for the command that runs.
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "profile": ("_profile", "profiles of chosen sources and models (table + plot)"),
+    "simulate": ("_simulate", "Monte Carlo observation -> FITS event list"),
+    "fold": ("_fold", "event list -> folded profiles (FITS)"),
+    "response": ("_response", "build and store a response (zarr); on Dask with --scheduler"),
+    "reconstruct": ("_reconstruct", "folded profiles + response -> FITS image + plot"),
+    "design": ("_design", "mask design trade-off (Pareto front)"),
+    "reproduce": ("_reproduce", "regenerate the seed paper's results with an HTML report"),
+}
+
+#: Why detectors on the rotation axis image a source and its mirror alike (docs/cli.md).
+MIRROR_NOTE = (
+    "Mirror sources: the mask looks the same after a half turn about the rotation axis, "
+    "which takes a source at (theta, phi) to its mirror at (theta, phi + 180 deg) and a "
+    "detector at r to -r. A detector on the axis goes to itself and records the same "
+    "profile for both, so an instrument whose detectors all sit on the axis (the 'paper' "
+    "preset) cannot tell them apart, and the commands warn. An array with detectors off the "
+    "axis (the 'prototype' preset) can, even a point-symmetric one: the mirror seen by the "
+    "detector at r is the source seen by the detector at -r, and the folded data keep the "
+    "detectors apart."
+)
+
+_EPILOG = (
+    "Run 'rotmod COMMAND --help' for the options of a command; instruments are TOML files or "
+    "presets (listed there). A chain: rotmod simulate -i prototype ... -o events.fits; rotmod "
+    "fold events.fits -o folded.fits; rotmod response -i prototype ... -o response.zarr; "
+    f"rotmod reconstruct folded.fits response.zarr -o image.fits. {MIRROR_NOTE}"
+)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``rotmod`` argument parser with every subcommand."""
+def _module(name: str) -> object:
+    return importlib.import_module(f"{__name__}.{SUBCOMMANDS[name][0]}")
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``rotmod`` argument parser.
+
+    Parameters
+    ----------
+    command : str, optional
+        Load only this subcommand's options (the others are listed with their help but not
+        imported); default: every subcommand's.
+    """
     parser = argparse.ArgumentParser(
         prog="rotmod",
         description="Rotating-modulator (RM) gamma-ray imaging: profiles, Monte Carlo, "
         "responses, reconstruction, mask design and the seed paper's results.",
-        epilog="Run 'rotmod COMMAND --help' for the options of a command. Instruments are "
-        "TOML files or the presets 'paper' and 'prototype'.",
+        epilog=_EPILOG,
     )
     parser.add_argument("--version", action="version", version=f"rotmod {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="log more (-v info, -vv debug)")
+                        help="log more (-v debug)")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="log warnings and errors only (no progress)")
     parser.add_argument("--debug", action="store_true",
                         help="show the full traceback of any error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for mod in _SUBCOMMANDS:
-        mod.register(sub)
+    for name, (_, help_) in SUBCOMMANDS.items():
+        if command is None or name == command:
+            _module(name).register(sub)  # type: ignore[attr-defined]
+        else:
+            sub.add_parser(name, help=help_, add_help=False)
     return parser
+
+
+def _command_of(argv: Sequence[str]) -> str:
+    """The subcommand in ``argv``: its first word that is not an option ("" if none)."""
+    return next((a for a in argv if not a.startswith("-")), "")
+
+
+@contextlib.contextmanager
+def cli_logging(verbose: int = 0, quiet: bool = False) -> Iterator[None]:
+    """Log ``rotmod`` messages to stderr with a timestamp while a command runs: info by
+    default (progress lines, notes, warnings), debug with ``-v``, warnings only with
+    ``--quiet``.  The handler and level are undone on exit, so that calling :func:`main` in
+    a process (tests, notebooks) leaves its logging as it was."""
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose else logging.INFO)
+    logger = logging.getLogger("rotmod")
+    handler = logging.StreamHandler(sys.stderr)  # the current stderr (a test may replace it)
+    handler.setFormatter(logging.Formatter("%(asctime)s rotmod: %(levelname)s: %(message)s",
+                                           datefmt="%Y-%m-%dT%H:%M:%S"))
+    old_level, old_propagate = logger.level, logger.propagate
+    logger.addHandler(handler)
+    logger.setLevel(level)
+    logger.propagate = False  # one line per message, not another from a root handler
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+        logger.propagate = old_propagate
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -79,24 +149,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     int
         The exit code (0 ok, 2 usage or user error, 1 unexpected error, 130 interrupted).
     """
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_command_of(argv))
     try:
-        args = parser.parse_args(list(argv) if argv is not None else None)
+        args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version or a usage error
         code = exc.code
         return code if isinstance(code, int) else (EXIT_OK if code is None else EXIT_USER)
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_USER
-    level = {0: logging.WARNING, 1: logging.INFO}.get(args.verbose, logging.DEBUG)
-    logging.basicConfig(level=level, format="rotmod: %(levelname)s: %(message)s")
-    logging.getLogger("rotmod").setLevel(level)
     try:
-        return int(args.func(args) or EXIT_OK)
+        with cli_logging(args.verbose, args.quiet):
+            return int(args.func(args) or EXIT_OK)
     except KeyboardInterrupt:
         print("rotmod: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except (RotmodError, UserError, OSError) as exc:
+    except (RotmodError, OSError) as exc:  # a UserError is a RotmodError
         if args.debug:
             raise
         print(f"rotmod: error: {_describe(exc)}", file=sys.stderr)

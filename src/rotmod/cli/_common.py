@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import os
 import sys
 from collections.abc import Callable
@@ -17,11 +18,25 @@ from rotmod.errors import RotmodError
 from rotmod.io import figures as io_figures
 from rotmod.io import tables as io_tables
 from rotmod.io.atomic import check_overwrite
-from rotmod.io.config import load_instrument_config
+from rotmod.io.config import list_presets, load_instrument_config
 from rotmod.registry import Registry
+from rotmod.response.parallel import Progress
+from rotmod.sky import Attitude, AttitudeTable, SkyGeometry
 
 if TYPE_CHECKING:
     from rotmod.config import InstrumentConfig
+    from rotmod.geometry import Instrument
+
+log = logging.getLogger("rotmod.cli")
+
+#: Mask-angle bins per rotation shared by ``fold`` and ``response``, so that their defaults
+#: chain: one bin per degree of mask rotation (the seed paper used 560; pass ``--bins 560`` to
+#: both to reproduce it).  A response's cost grows with the bins, and 1 deg bins already
+#: sample the modulation of the presets' masks several times per period.
+DEFAULT_BINS = 360
+BINS_HELP = (f"mask-angle bins per rotation (default {DEFAULT_BINS}: one per degree, the same "
+             "in rotmod fold and rotmod response so that their files chain; the seed paper "
+             "used 560)")
 
 
 class UserError(RotmodError):
@@ -33,8 +48,90 @@ def add_instrument(p: argparse.ArgumentParser, *, default: str | None = "paper")
     p.add_argument(
         "-i", "--instrument", default=default, metavar="FILE|PRESET",
         help="instrument description (TOML/YAML file) or preset name "
-        f"(paper, prototype){'; default ' + default if default else ''}",
+        f"({', '.join(list_presets())}){'; default ' + default if default else ''}; "
+        "a preset whose detectors all sit on the rotation axis (paper) cannot tell a "
+        "source from its 180 deg mirror (see 'rotmod --help')",
     )
+
+
+def mirror_degenerate(instrument: Instrument) -> bool:
+    """Whether every detector of ``instrument`` is on the rotation axis (see
+    :data:`MIRROR_NOTE`): then a source and its 180 deg mirror give the same profiles."""
+    pos = np.asarray(instrument.detectors.positions, dtype=float)  # cm
+    return bool(np.all(np.hypot(pos[:, 0], pos[:, 1]) <= 1e-9))
+
+
+def warn_if_mirror_degenerate(instrument: Instrument, what: str) -> bool:
+    """Log a warning (a line on stderr in the CLI) when ``instrument`` cannot tell a source
+    from its mirror; return whether it warned."""
+    if not mirror_degenerate(instrument):
+        return False
+    log.warning("%s: all %d detector(s) of this instrument are on the rotation axis, so a "
+                "source at (theta, phi) and its mirror at (theta, phi + 180 deg) give the "
+                "same profiles; an image shows both (use an array such as the 'prototype' "
+                "preset to tell them apart)", what, len(instrument.detectors))
+    return True
+
+
+def describe_position(grid: SkyGeometry, index: int) -> str:
+    """Pixel ``index`` of ``grid`` in degrees: RA/Dec on a celestial grid, else the
+    instrument-frame zenith and azimuth."""
+    if grid.frame == "celestial":
+        c = grid.sky_coords().ravel()[index]
+        return f"RA {c.ra.deg:.3f} deg, Dec {c.dec.deg:+.3f} deg"
+    theta, phi = grid.directions()
+    th = float(np.ravel(theta.to_value(u.deg))[index])
+    ph = float(np.ravel(phi.to_value(u.deg))[index]) % 360.0
+    return f"theta {th:.3f} deg, phi {ph:.3f} deg (instrument frame)"
+
+
+def parse_radec(text: str, option: str) -> tuple[float, float]:
+    """``RA,DEC`` in degrees (each may carry a unit), with ``-90 <= DEC <= 90``."""
+    parts = [x.strip() for x in text.split(",")]
+    if len(parts) != 2:
+        raise UserError(f"{option}: must be RA,DEC in degrees, got {text!r}")
+    try:
+        ra, dec = (to_number(x, "deg") for x in parts)
+    except argparse.ArgumentTypeError as exc:
+        raise UserError(f"{option}: RA,DEC: {exc}") from None
+    if not -90.0 <= dec <= 90.0:
+        raise UserError(f"{option}: Dec must be in [-90, 90] deg, got {dec:g} in {text!r}")
+    return ra, dec
+
+
+def add_attitude(p: argparse.ArgumentParser) -> None:
+    """``--attitude FILE`` or ``--pointing RA,DEC [--roll DEG]``: where the instrument points."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--attitude", default=None, metavar="FILE",
+                   help="attitude table (ECSV or FITS: columns time [s], ra, dec, roll [deg]) "
+                   "of a drifting observation")
+    g.add_argument("--pointing", default=None, metavar="RA,DEC",
+                   help="fixed pointing of the rotation axis (ICRS, deg)")
+    p.add_argument("--roll", type=quantity("deg"), default=None, metavar="DEG",
+                   help="with --pointing: position angle (east of north) of the instrument's "
+                   "+y axis (deg; default 0)")
+    p.add_argument("--max-step", type=quantity("s"), default=60.0, metavar="SECONDS",
+                   help="with --attitude: longest piece of constant attitude (s; default 60)")
+
+
+def attitude_of(args: argparse.Namespace) -> Attitude | AttitudeTable | None:
+    """The ``--attitude`` table or the fixed ``--pointing``/``--roll`` (``None``: neither)."""
+    if args.roll is not None and args.pointing is None:
+        raise UserError(f"--roll: goes with --pointing (an --attitude table has its own roll), "
+                        f"got --roll {args.roll:g} without it")
+    if args.attitude is not None:
+        return AttitudeTable.read(check_input(args.attitude, "--attitude"))
+    if args.pointing is not None:
+        return Attitude(*parse_radec(args.pointing, "--pointing"), args.roll or 0.0)
+    return None
+
+
+def intervals_of(table: AttitudeTable, t_start: float, t_stop: float,
+                 max_step: float) -> list[tuple[float, float, Attitude]]:
+    """The pieces of constant attitude of ``table`` over ``[t_start, t_stop]`` (s)."""
+    if not np.isfinite(max_step) or max_step <= 0:
+        raise UserError(f"--max-step: must be > 0 s, got {max_step:g} s")
+    return table.intervals(t_start, t_stop, max_step)
 
 
 def to_number(text: str, unit: str) -> float:
@@ -85,7 +182,8 @@ def add_energy(p: argparse.ArgumentParser) -> None:
 
 def add_progress(p: argparse.ArgumentParser) -> None:
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                   help="show a progress bar (default: when stderr is a terminal)")
+                   help="report progress: a bar when stderr is a terminal, else a log line "
+                   "every few seconds (default on; --no-progress or --quiet for none)")
 
 
 def add_output(p: argparse.ArgumentParser, *, required: bool = True, help: str = "output file",
@@ -108,18 +206,30 @@ def energy_of(args: argparse.Namespace, cfg: Any) -> float:
 
 
 def iteration_bar(enabled: bool, desc: str) -> Any:
-    """A tqdm bar counting iterations of unknown total (a null context when disabled)."""
+    """A :class:`~rotmod.response.parallel.Progress` of iterations of unknown total (a
+    null context when disabled).  A command line draws bars only on a terminal: run from
+    a notebook or a script, it logs lines like any batch job."""
     if not enabled:
         return contextlib.nullcontext(None)
-    from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
+    return Progress(None, desc, "it", tty=sys.stderr.isatty())
 
-    return tqdm(desc=desc, unit="it")
+
+def heartbeat(args: argparse.Namespace, desc: str, total: int | None = None,
+              unit: str = "it") -> Any:
+    """Progress of a step that reports little or nothing (a drift response, a Radon table,
+    the first call that compiles numba kernels): log lines every few seconds, on a terminal
+    too, since a bar would stand still (a null context with ``--no-progress``/``--quiet``)."""
+    if not progress_wanted(args):
+        return contextlib.nullcontext(None)
+    return Progress(total, desc, unit, tty=False)
 
 
 def progress_wanted(args: argparse.Namespace) -> bool:
+    """``--progress``/``--no-progress``; by default on (a bar on a terminal, log lines
+    elsewhere) unless ``--quiet``."""
     flag = getattr(args, "progress", None)
     if flag is None:
-        return sys.stderr.isatty()
+        return not getattr(args, "quiet", False)
     return bool(flag)
 
 
@@ -274,17 +384,10 @@ def use_agg() -> None:
 
 
 def tqdm_progress(total: int, desc: str, unit: str = "it") -> tuple[Callable, Callable]:
-    """A ``(update(done, total), close())`` pair drawing a tqdm bar on stderr."""
-    from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
-
-    bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
-
-    def update(done: int, tot: int) -> None:
-        if bar.total != tot:
-            bar.total = tot
-        bar.update(done - bar.n)
-
-    return update, bar.close
+    """A ``(update(done, total), close())`` pair: a bar on a terminal, log lines elsewhere
+    (:class:`~rotmod.response.parallel.Progress`)."""
+    bar = Progress(total, desc, unit, tty=sys.stderr.isatty())
+    return bar.update_to, bar.close
 
 
 def say(msg: str) -> None:

@@ -51,7 +51,7 @@ def register(sub: Any) -> None:
         "resolving power (arctan b/L), averaged over the field and energies; report the Pareto "
         "front, whether each design is inside the advanced model's validity "
         "(min a'(t), min b'(t) >= 0), and the best design for the given weights.",
-        epilog="example: rotmod design -i paper --a 2:8:7 --b 2:8:7 --h 2 --fov 20 "
+        epilog="example: rotmod design -i prototype --a 2:8:7 --b 2:8:7 --h 2 --fov 20 "
         "--energies 122,662 -o design.ecsv --plot design.png. Ranges are START:STOP:NUM "
         "(inclusive) or comma lists, in cm / keV.",
     )

@@ -7,6 +7,8 @@ from typing import Any
 
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.cli._common import (
+    BINS_HELP,
+    DEFAULT_BINS,
     UserError,
     add_output,
     check_input,
@@ -28,11 +30,12 @@ def register(sub: Any) -> None:
         help="event list -> folded profiles (FITS)",
         description="Fold a FITS event list modulo the mask rotation period into count "
         "profiles per detector (counts, exposure per bin) and write them as FITS.",
-        epilog="example: rotmod fold events.fits --bins 360 -o folded.fits",
+        epilog="example: rotmod fold events.fits -o folded.fits  (then rotmod reconstruct "
+        "folded.fits response.zarr ..., with a response of the same --bins)",
     )
     p.add_argument("events", metavar="EVENTS", help="event list (FITS, from rotmod simulate)")
-    p.add_argument("-n", "--bins", type=count(1), default=360, metavar="N",
-                   help="mask-angle bins per rotation (default 360)")
+    p.add_argument("-n", "--bins", type=count(1), default=DEFAULT_BINS, metavar="N",
+                   help=BINS_HELP)
     p.add_argument("--band", default=None, metavar="LO:HI",
                    help="keep events with LO <= energy <= HI (keV; each may carry a unit: "
                    "100:0.14MeV)")

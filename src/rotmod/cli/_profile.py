@@ -39,7 +39,7 @@ def register(sub: Any) -> None:
         description="Compute characteristic count-rate profiles P(xi) of point sources with "
         "one or more models and write them as a table (ECSV or CSV, long format: model, "
         "detector, source, mask angle, profile) and a PNG plot.",
-        epilog="example: rotmod profile -i paper --source 6,30 --source 48,0 "
+        epilog="example: rotmod profile -i prototype --source 6,30 --source 48,0 "
         "-o profiles.ecsv --plot profiles.png",
     )
     add_instrument(p)

@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+import astropy.units as u
 import numpy as np
+from astropy.coordinates import SkyCoord
 
 from rotmod.cli._common import (
     UserError,
@@ -15,16 +17,20 @@ from rotmod.cli._common import (
     check_output,
     check_plot,
     count,
+    describe_position,
     iteration_bar,
+    parse_radec,
     progress_wanted,
     registered,
     save_figure,
     say,
     source_arg,
     use_agg,
+    warn_if_mirror_degenerate,
 )
 from rotmod.io import read_folded
 from rotmod.io.images import write_image
+from rotmod.io.response_store import as_store_path, open_store
 from rotmod.plotting.images import plot_image
 from rotmod.reconstruction import ALGORITHMS, reconstruct
 from rotmod.reconstruction.api import DEFAULT_METHOD
@@ -36,11 +42,15 @@ def register(sub: Any) -> None:
         "reconstruct",
         help="folded profiles + response -> FITS image + plot",
         description="Reconstruct a sky image from folded count profiles (rotmod fold) with a "
-        "stored response (rotmod response), and write it as FITS (with WCS) and optionally a "
-        "PNG plot. The response must have been computed for the data's instrument and number "
-        "of bins.",
-        epilog="example: rotmod reconstruct folded.fits response.zarr --method mlem "
-        "-o image.fits --plot image.png",
+        "stored response (rotmod response), and write it as FITS on the response's grid "
+        "(instrument frame, celestial TAN WCS or HEALPix) and optionally a PNG plot. The "
+        "response must have been computed for the data's instrument and number of bins "
+        "(checked before the response's data are read). The brightest pixel is reported in "
+        "degrees: RA/Dec on a celestial or HEALPix grid, else the instrument-frame zenith "
+        "and azimuth.",
+        epilog="examples: rotmod reconstruct folded.fits response.zarr -o image.fits "
+        "--plot image.png;  rotmod reconstruct folded.fits sky.zarr --method mlem "
+        "--max-iter 50 -o sky.fits --plot sky.png --mark-sky 201.5,-59.2",
     )
     p.add_argument("folded", metavar="FOLDED", help="folded profiles (FITS)")
     p.add_argument("response", metavar="RESPONSE",
@@ -61,7 +71,11 @@ def register(sub: Any) -> None:
     p.add_argument("--plot", default=None, metavar="PNG", help="also write a plot")
     p.add_argument("--mark", action="append", default=None, metavar="THETA,PHI",
                    type=source_arg(),
-                   help="mark a true source position on the plot (deg); repeatable")
+                   help="mark a true source position (instrument frame, deg) on the plot; "
+                   "repeatable")
+    p.add_argument("--mark-sky", action="append", default=None, metavar="RA,DEC",
+                   help="mark a true source position (ICRS, deg) on the plot of a celestial "
+                   "grid; repeatable")
     p.set_defaults(func=run)
 
 
@@ -72,13 +86,20 @@ def run(args: argparse.Namespace) -> int:
     plot = check_plot(args.plot, args.overwrite)
     if args.method is not None:
         registered(ALGORITHMS, args.method, "--method")
+    marks = _marks(args)
     folded = read_folded(src)
-    response = open_response(rsp, instrument=folded.instrument)
-    if response.n_time != folded.n_bins:
+    # The bins first, from the store's metadata alone: a mismatch costs no read of the
+    # response's data (a matrix or a Radon table can take minutes to load).
+    _, meta = open_store(as_store_path(rsp))
+    n_time = int(meta["time_bins"]["n_bins"])
+    if n_time != folded.n_bins:
         raise UserError(
-            f"{rsp}: the response has {response.n_time} time bins but {src} has "
-            f"{folded.n_bins}; fold with --bins {response.n_time} or rebuild the response"
+            f"RESPONSE {str(rsp)!r} has {n_time} time bins (mask-angle bins per rotation) "
+            f"but FOLDED {str(src)!r} has {folded.n_bins}: they must be equal; fold with "
+            f"--bins {n_time} or rebuild the response with --bins {folded.n_bins}"
         )
+    warn_if_mirror_degenerate(folded.instrument, "rotmod reconstruct")
+    response = open_response(rsp, instrument=folded.instrument)
     if isinstance(response, StoredResponse):
         response = response.materialise()  # a stored matrix: products from memory
     kw: dict[str, Any] = {}
@@ -98,19 +119,29 @@ def run(args: argparse.Namespace) -> int:
     write_image(out, res, overwrite=args.overwrite,
                 meta={"folded": str(src), "response": str(rsp), **info,
                       "exposure": float(np.sum(folded.gti[:, 1] - folded.gti[:, 0]))})
-    peak = np.unravel_index(int(np.argmax(res.image)), res.image.shape)
     say(f"rotmod: {res.method}: {res.n_iter} iteration(s), stop: {res.stop_reason}, "
-        f"chi2/dof {res.chi2_dof:.3g}, peak at pixel (iy, ix) = {tuple(int(v) for v in peak)}")
+        f"chi2/dof {res.chi2_dof:.3g}, brightest pixel at "
+        f"{describe_position(res.grid, int(np.argmax(res.image)))}")
     say(f"rotmod: wrote {out}")
     if plot is not None:
         use_agg()
-
-        marks = None
-        if args.mark:
-            m = np.array(args.mark)  # deg, checked by argparse
-            marks = (m[:, 0], m[:, 1])
         ax = plot_image(res.image, res.grid, sources=marks,
                         title=f"{res.method} ({response.metadata()['model']['model']})")
         save_figure(ax.figure, plot)
         say(f"rotmod: wrote {plot}")
     return 0
+
+
+def _marks(args: argparse.Namespace) -> Any:
+    """The plot's true sources: ``(theta, phi)`` (deg) of ``--mark`` or a SkyCoord of
+    ``--mark-sky`` (checked before any work)."""
+    if args.mark and args.mark_sky:
+        raise UserError("--mark and --mark-sky: give one kind of position (instrument frame "
+                        "or sky) for one plot")
+    if args.mark:
+        m = np.array(args.mark)  # deg, checked by argparse
+        return (m[:, 0], m[:, 1])
+    if args.mark_sky:
+        radec = np.array([parse_radec(t, "--mark-sky") for t in args.mark_sky])
+        return SkyCoord(radec[:, 0] * u.deg, radec[:, 1] * u.deg)
+    return None

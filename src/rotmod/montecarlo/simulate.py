@@ -610,6 +610,7 @@ def simulate_drift(
     seed: Any = None,
     resolution: Any = None,
     meta: dict[str, Any] | None = None,
+    progress: Callable[[int, int], Any] | None = None,
 ) -> EventList:
     """An observation of sky sources while the attitude drifts.
 
@@ -628,6 +629,8 @@ def simulate_drift(
         As for :class:`PointSources` and :func:`simulate_observation`.
     seed : int or SeedSequence, optional
         One seed for the whole observation (each interval gets its own stream).
+    progress : callable, optional
+        Called as ``progress(done, total)`` with the intervals simulated and their number.
 
     Returns
     -------
@@ -644,6 +647,8 @@ def simulate_drift(
                                           background=background,
                                           background_energy=background_energy, seed=ss,
                                           resolution=resolution, meta=meta))
+        if progress is not None:
+            progress(len(parts), len(intervals))
     gti = np.concatenate([p.gti for p in parts])
     mid = intervals[len(intervals) // 2][2]
     return EventList(

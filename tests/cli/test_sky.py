@@ -34,7 +34,7 @@ def run(capsys, *argv: object) -> tuple[int, str, str]:
 
 def _brightest(path) -> SkyCoord:
     """The sky position of the brightest pixel, from the file alone: its celestial WCS, or
-    its HEALPix table (PIXEL, INTENSITY, NSIDE, ORDERING) read as healpy and gammapy do."""
+    its HEALPix table (PIX, VALUE, NSIDE, ORDERING) read as healpy and gammapy do."""
     img = read_image(path)
     if img.wcs is not None:
         iy, ix = np.unravel_index(int(np.argmax(img.image)), img.image.shape)
@@ -43,7 +43,7 @@ def _brightest(path) -> SkyCoord:
     with fits.open(path) as hdus:
         h, t = hdus["HEALPIX"].header, Table.read(hdus["HEALPIX"])
     grid = hp.HEALPix(nside=h["NSIDE"], order=h["ORDERING"].lower(), frame=ICRS())
-    return grid.healpix_to_skycoord(int(t["PIXEL"][int(np.argmax(t["INTENSITY"]))]))
+    return grid.healpix_to_skycoord(int(t["PIX"][int(np.argmax(t["VALUE"]))]))
 
 
 def test_sky_chain_finds_the_source_at_its_ra_dec(capsys, tmp_path) -> None:

@@ -102,6 +102,23 @@ def test_chain_simulate_fold_response_reconstruct(capsys, tmp_path) -> None:
     assert code == 0, err
     img = read_image(im)
     assert img.image.shape == (8, 8)
+    # Each product says how it was made: the command line, and the seed where one was used.
+    from astropy.io import fits
+
+    with fits.open(ev) as e, fits.open(fo) as f, fits.open(im) as i:
+        assert e[0].header["SEED"] == 1 and e[0].header["COMMAND"].startswith("rotmod simulate")
+        assert f[0].header["COMMAND"].startswith("rotmod fold") and "SEED" not in f[0].header
+        assert i[0].header["SEED"] == 0 and "mlem" in i[0].header["COMMAND"]
+    # A fresh seed is recorded too, so that any run can be repeated.
+    ev3 = tmp_path / "ev3.fits"
+    assert run(capsys, "simulate", "-i", inst, "-s", "2.5,30,40", "-t", "5", "-o", ev3,
+               "--no-progress")[0] == 0
+    with fits.open(ev3) as e:
+        fresh = int(e[0].header["SEED"])
+    again = tmp_path / "again.fits"
+    assert run(capsys, "simulate", "-i", inst, "-s", "2.5,30,40", "-t", "5", "--seed",
+               str(fresh), "-o", again, "--no-progress")[0] == 0
+    np.testing.assert_array_equal(read_events(again).time, read_events(ev3).time)
     iy, ix = np.unravel_index(np.argmax(img.image), img.image.shape)
     # Source at tangent (2.16, 1.25) deg: pixel centres are at -3.5 .. 3.5 in 1 deg steps.
     assert (ix, iy) == (6, 5)

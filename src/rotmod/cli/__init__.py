@@ -159,6 +159,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_USER
+    # The command as given, for the provenance cards of the files a command writes.
+    args.command_line = ["rotmod", *argv]
     try:
         with cli_logging(args.verbose, args.quiet):
             return int(args.func(args) or EXIT_OK)

@@ -317,10 +317,19 @@ def count(lo: int) -> Callable[[str], int]:
 
     def conv(text: str) -> int:
         try:
-            value = float(text)
+            # Integer digits exactly (a 128-bit seed does not survive a float); 1e3 and 2.0
+            # through float, when whole.
+            value: float | int = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}") from None
-        if not value.is_integer() or value < lo:
+            try:
+                value = float(text)
+            except ValueError:
+                raise argparse.ArgumentTypeError(
+                    f"must be an integer >= {lo}, got {text!r}") from None
+            if not value.is_integer():
+                raise argparse.ArgumentTypeError(
+                    f"must be an integer >= {lo}, got {text!r}") from None
+        if value < lo:
             raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}")
         return int(value)
 

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         if band is None:
             raise UserError(f"--band: must be LO:HI (keV), got {args.band!r}")
     folded = fold(events, TimeBinning(args.bins), band)
-    write_folded(folded, out, overwrite=args.overwrite)
+    write_folded(folded, out, overwrite=args.overwrite, command=args.command_line)
     say(f"rotmod: wrote {out} ({folded.counts.shape[0]} detector(s) x {folded.n_bins} bins, "
         f"{int(folded.counts.sum())} counts)")
     if plot is not None:

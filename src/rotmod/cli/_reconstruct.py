@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     info = {k: folded.meta[k] for k in ("telescop", "instrume", "obs_id") if k in folded.meta}
     if folded.energy_band is not None:
         info.update(folded.energy_band.to_dict())  # E_MIN, E_MAX of the image file
-    write_image(out, res, overwrite=args.overwrite,
+    write_image(out, res, overwrite=args.overwrite, seed=args.seed, command=args.command_line,
                 meta={"folded": str(src), "response": str(rsp), **info,
                       "exposure": float(np.sum(folded.gti[:, 1] - folded.gti[:, 0]))})
     say(f"rotmod: {res.method}: {res.n_iter} iteration(s), stop: {res.stop_reason}, "

@@ -115,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
     warn_if_mirror_degenerate(inst, "rotmod simulate")
     energy = energy_of(args, cfg)
     meta = {"object": "rotmod simulate", "instrume": cfg.name or "custom"}
+    # One SeedSequence for the simulation and the file: a fresh seed is recorded too.
+    seed = np.random.SeedSequence(args.seed)
     want = progress_wanted(args)
     if isinstance(att, AttitudeTable):
         intervals = intervals_of(att, 0.0, args.exposure, args.max_step)
@@ -123,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         with heartbeat(args, "MC observation", len(intervals), "piece") as bar:
             events = simulate_drift(
                 inst, coords, intervals, rate=[s[2] for s in sky], energy=energy,
-                background=args.background, seed=args.seed, meta=meta,
+                background=args.background, seed=seed, meta=meta,
                 progress=None if bar is None else bar.update_to,
             )
         where = f", {len(intervals)} attitude pieces"
@@ -142,11 +144,11 @@ def run(args: argparse.Namespace) -> int:
               else contextlib.nullcontext()) as bar:
             events = simulate_observation(
                 inst, sources, t_stop=args.exposure, background=args.background,
-                seed=args.seed, progress=None if bar is None else bar.update_to, meta=meta,
+                seed=seed, progress=None if bar is None else bar.update_to, meta=meta,
                 attitude=att,
             )
         where = "" if att is None else f", pointing RA {att.ra:g} Dec {att.dec:g} deg"
-    write_events(events, out, overwrite=args.overwrite)
+    write_events(events, out, overwrite=args.overwrite, seed=seed, command=args.command_line)
     say(f"rotmod: wrote {out} ({len(events)} events, {len(inst.detectors)} detector(s), "
         f"{args.exposure:g} s, {energy:g} keV{where})")
     return 0

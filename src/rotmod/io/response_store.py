@@ -98,7 +98,7 @@ TABLE_DIMS = ("detector_offset", "direction_node")
 _COORD_CHUNK = 1 << 20
 
 #: A coordinate: its dimension names, values and CF attributes (``units``, ``long_name``).
-Coord = tuple[tuple[str, ...], np.ndarray, dict[str, str]]
+_Coord = tuple[tuple[str, ...], np.ndarray, dict[str, str]]
 
 
 def _zarr() -> Any:
@@ -337,7 +337,7 @@ def read_table(group: Any, store: Path) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ axes, for other tools
-def axis_coords(instrument: Any, grid: SkyGeometry | None, time_bins: Any) -> dict[str, Coord]:
+def axis_coords(instrument: Any, grid: SkyGeometry | None, time_bins: Any) -> dict[str, _Coord]:
     """The coordinates of the axes of ``P`` that ``instrument``, ``grid`` and ``time_bins``
     give (each may be ``None``: its coordinates are left out).
 
@@ -346,7 +346,7 @@ def axis_coords(instrument: Any, grid: SkyGeometry | None, time_bins: Any) -> di
     dict
         Name -> ``(dims, values, attrs)``: see the module notes for the names.
     """
-    out: dict[str, Coord] = {}
+    out: dict[str, _Coord] = {}
     if time_bins is not None:
         out["mask_angle"] = (("time_bin",), np.degrees(time_bins.angles()), {
             "units": "deg", "long_name": "mask angle at the centre of the time bin"})

@@ -15,9 +15,9 @@ from typing import Any
 
 import astropy.units as u
 import numpy as np
+from astropy.coordinates import angular_separation
 
 from rotmod._validate import as_angle
-from rotmod.conventions import source_direction
 from rotmod.errors import ParameterError
 
 __all__ = [
@@ -52,9 +52,10 @@ def angular_distance(grid: Any, x1: Any, y1: Any, x2: Any, y2: Any) -> np.ndarra
     """Great-circle angle (deg) between tangent-plane points ``(x1, y1)`` and ``(x2, y2)``."""
     t1, p1 = (v.to_value(u.rad) for v in grid.from_tangent(x1, y1))
     t2, p2 = (v.to_value(u.rad) for v in grid.from_tangent(x2, y2))
-    chord = np.linalg.norm(source_direction(t1, p1) - source_direction(t2, p2), axis=-1)
-    # 2 arcsin(chord / 2) keeps full precision at small angles (arccos does not).
-    return np.degrees(2 * np.arcsin(np.clip(chord / 2, 0.0, 1.0)))
+    # astropy's Vincenty formula: full precision at every angle (arccos loses small ones);
+    # latitude is 90 deg minus the zenith angle.
+    half_pi = np.pi / 2
+    return np.degrees(angular_separation(p1, half_pi - t1, p2, half_pi - t2))
 
 
 def find_peaks(image: Any, *, min_value: float = 0.0) -> np.ndarray:

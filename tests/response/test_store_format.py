@@ -3,6 +3,7 @@ and attributes in words; stores in the layout written before those additions sti
 
 from __future__ import annotations
 
+import datetime
 import json
 import shutil
 
@@ -60,6 +61,10 @@ def test_xarray_opens_a_dense_store(tmp_path, inst):
     assert ds.attrs["time_bins"].startswith("20 mask-angle bins per rotation, mode 'average'")
     assert ds.attrs["sky_grid"].startswith("instrument grid (SkyGrid) of 42 pixels (6 x 7)")
     assert "7 detector(s)" in ds.attrs["instrument"] and "lead" in ds.attrs["instrument"]
+    # When and from which code, as every FITS product says it.
+    created = datetime.datetime.fromisoformat(ds.attrs["date_created"])
+    assert abs(datetime.datetime.now(datetime.UTC) - created).total_seconds() < 600
+    assert ds.attrs["rotmod_commit"]
     # The JSON metadata rotmod reads is still there, unchanged.
     assert json.loads(ds.attrs["rotmod_response"])["format_version"] == fmt.FORMAT_VERSION
 

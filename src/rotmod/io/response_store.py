@@ -28,7 +28,8 @@ self-describing, in the CF conventions' terms (:func:`write_axes`, at finalisati
   of a WCS grid's pixel: ``ds.set_index(pixel=["pixel_y", "pixel_x"]).unstack("pixel")``
   gives images), ``healpix_index`` (HEALPix grids);
 * group attributes in words (``title``, ``instrument``, ``sky_grid``, ``time_bins``,
-  ``model``, ``energy`` with its unit, ``source_distance``, ``dtype``, ``rotmod_version``);
+  ``model``, ``energy`` with its unit, ``source_distance``, ``dtype``, ``rotmod_version``,
+  ``rotmod_commit``, ``date_created``);
 * consolidated metadata (one read opens the store; xarray opens it without a warning).
 
 rotmod itself reads only the JSON metadata and ``P``/``table``: stores written before these
@@ -48,6 +49,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -57,6 +59,7 @@ import numpy as np
 
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.io.atomic import check_overwrite
+from rotmod.io.provenance import git_commit
 from rotmod.sky.celestial import CelestialGrid
 from rotmod.sky.geometry import SkyGeometry, WcsGeometry
 from rotmod.sky.healpix import HealpixGrid
@@ -415,6 +418,10 @@ def _describe(meta: dict[str, Any], grid: SkyGeometry | None) -> dict[str, str]:
     for key in ("dtype", "rotmod_version"):
         if meta.get(key) is not None:
             out[key] = str(meta[key])
+    # Provenance in words, as every FITS product carries it (rotmod.io.provenance); not in
+    # the JSON metadata, which describes what the response is, not when it was made.
+    out["rotmod_commit"] = git_commit() or "unknown"
+    out["date_created"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     return out
 
 

@@ -19,8 +19,9 @@ SRC = Path(rotmod.__file__).resolve().parent
 #: Top-level private helper modules meant to be shared by every package.
 SHARED_PRIVATE = {"rotmod._validate", "rotmod._deps"}
 #: The only imports of rotmod modules inside functions: a lower-layer class that offers
-#: ``.read``/``.write`` delegating to the file layer (rotmod.io), which builds on it.  At module
-#: level each would be a cycle; inside the method it runs after both modules are loaded.
+#: ``.read``/``.write`` delegating to the file layer (rotmod.io), which builds on it (at module
+#: level each would be a cycle; inside the method it runs after both modules are loaded), and
+#: the package's own names, loaded on first use.
 LAZY_DELEGATIONS = {
     ("rotmod.config", "rotmod.io.config"):
         "InstrumentConfig.read/.write/.to_toml, `extends` and the moved file functions "
@@ -28,6 +29,11 @@ LAZY_DELEGATIONS = {
         "InstrumentConfig",
     ("rotmod.sky.attitude", "rotmod.io.tables"):
         "AttitudeTable.read/.write are rotmod.io.tables', which reads and writes AttitudeTable",
+    # Not a delegation to io: the package's re-exported names load on first use (PEP 562),
+    # so that `rotmod --help` starts without numba and astropy.
+    ("rotmod", "rotmod.geometry"): "rotmod.Instrument, .Mask, .DetectorArray on first use",
+    ("rotmod", "rotmod.materials"): "rotmod.Material on first use",
+    ("rotmod", "rotmod.profiles"): "rotmod.get_model on first use",
 }
 #: The layers, lowest first (docs/architecture.md): a module imports, at module level, from
 #: its own layer or lower ones only.  A unit is a top-level module or package of rotmod

@@ -171,7 +171,8 @@ def test_progress_logs_lines_off_a_terminal(caplog) -> None:
 def test_top_level_help_imports_no_science() -> None:
     code = ("import sys; from rotmod.cli import main; main(['--help']); "
             "print(sorted(m for m in sys.modules if m.startswith(('rotmod.cli.', "
-            "'rotmod.response', 'rotmod.io', 'rotmod.sky', 'matplotlib'))))")
+            "'rotmod.response', 'rotmod.io', 'rotmod.sky', 'rotmod.geometry', "
+            "'rotmod.profiles', 'matplotlib', 'numba', 'astropy'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip().splitlines()[-1] == "[]"

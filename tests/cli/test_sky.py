@@ -195,3 +195,25 @@ def test_the_mirror_rule_behind_the_warning() -> None:
         partner = [int(np.argmin(np.hypot(*(pos + r).T))) for r in pos]  # the one at -r
         np.testing.assert_allclose(p[:, :, 0], p[partner, :, 1], atol=1e-12)
         assert bool(np.abs(p[:, :, 0] - p[:, :, 1]).max() < 1e-12) is degenerate
+
+
+def test_marks_the_plot_cannot_draw_and_uncovered_attitudes_are_refused_up_front() -> None:
+    from rotmod.cli._common import UserError, intervals_of
+    from rotmod.cli._reconstruct import _check_marks
+
+    sky, frame = SkyCoord([84.5] * u.deg, [23.0] * u.deg), (np.array([1.0]), np.array([30.0]))
+    _check_marks(sky, "celestial")
+    _check_marks(frame, "instrument")
+    _check_marks(None, "healpix")
+    with pytest.raises(UserError, match=r"--mark-sky: .* grid is 'instrument'; use --mark"):
+        _check_marks(sky, "instrument")
+    with pytest.raises(UserError, match=r"--mark-sky: .* grid is 'healpix'"):
+        _check_marks(sky, "healpix")
+    with pytest.raises(UserError, match=r"--mark: .* grid is 'celestial'; use --mark-sky"):
+        _check_marks(frame, "celestial")
+    # Outside its samples a table would hold its end attitude: a silently frozen drift.
+    table = AttitudeTable([0.0, 200.0], [83.0, 84.0], [22.0, 22.5], [0.0, 10.0])
+    assert len(intervals_of(table, 0.0, 200.0, 50.0)) == 4
+    with pytest.raises(UserError, match=r"--attitude: the table covers 0 \.\. 200 s, but the "
+                                        r"observation runs 0 \.\. 600 s"):
+        intervals_of(table, 0.0, 600.0, 50.0)

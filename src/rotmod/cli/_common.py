@@ -131,6 +131,14 @@ def intervals_of(table: AttitudeTable, t_start: float, t_stop: float,
     """The pieces of constant attitude of ``table`` over ``[t_start, t_stop]`` (s)."""
     if not np.isfinite(max_step) or max_step <= 0:
         raise UserError(f"--max-step: must be > 0 s, got {max_step:g} s")
+    t0, t1 = float(table.time[0]), float(table.time[-1])
+    if t_start < t0 or t_stop > t1:
+        # Outside its samples a table holds its end attitude: a drift silently frozen.
+        raise UserError(
+            f"--attitude: the table covers {t0:g} .. {t1:g} s, but the observation runs "
+            f"{t_start:g} .. {t_stop:g} s; give an --exposure within the table (times are "
+            "seconds from the start of the observation)"
+        )
     return table.intervals(t_start, t_stop, max_step)
 
 

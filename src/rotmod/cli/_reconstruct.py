@@ -98,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
             f"but FOLDED {str(src)!r} has {folded.n_bins}: they must be equal; fold with "
             f"--bins {n_time} or rebuild the response with --bins {folded.n_bins}"
         )
+    _check_marks(marks, str((meta.get("grid") or {}).get("kind", "instrument")))
     warn_if_mirror_degenerate(folded.instrument, "rotmod reconstruct")
     response = open_response(rsp, instrument=folded.instrument)
     if isinstance(response, StoredResponse):
@@ -130,6 +131,20 @@ def run(args: argparse.Namespace) -> int:
         save_figure(ax.figure, plot)
         say(f"rotmod: wrote {plot}")
     return 0
+
+
+def _check_marks(marks: Any, kind: str) -> None:
+    """Refuse, before any work, marks the plot of this grid kind cannot draw."""
+    if marks is None:
+        return
+    if isinstance(marks, SkyCoord) and kind != "celestial":
+        raise UserError(f"--mark-sky: sky positions are drawn on celestial images, but the "
+                        f"response's grid is {kind!r}"
+                        + ("; use --mark THETA,PHI" if kind == "instrument" else ""))
+    if not isinstance(marks, SkyCoord) and kind != "instrument":
+        raise UserError(f"--mark: instrument-frame positions are drawn on instrument-frame "
+                        f"images, but the response's grid is {kind!r}"
+                        + ("; use --mark-sky RA,DEC" if kind == "celestial" else ""))
 
 
 def _marks(args: argparse.Namespace) -> Any:

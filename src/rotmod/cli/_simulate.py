@@ -51,7 +51,8 @@ def register(sub: Any) -> None:
         "Sources are given in the instrument frame (--source) or on the sky (--sky-source, "
         "with the attitude: a fixed --pointing/--roll, or an --attitude table for a drifting "
         "observation over [0, --exposure] s). The event file records the pointing (the "
-        "table's at mid-observation for a drift); an attitude table is not copied into it: "
+        "attitude of the middle constant-attitude piece for a drift); an attitude table is not "
+        "copied into it: "
         "give the same --attitude (and --max-step) to rotmod response.",
         epilog="examples: rotmod simulate -i prototype --source 6,30,50 --exposure 600 "
         "--seed 1 -o events.fits;  rotmod simulate -i prototype --pointing 83.6,22.0 --roll "

@@ -27,6 +27,7 @@ from rotmod.geometry import Instrument, disc_flux
 from rotmod.limits import check_memory
 from rotmod.montecarlo import _transport as tr
 from rotmod.montecarlo._rng import chunk_states, seed_sequence
+from rotmod.progress import Progress, progress_callbacks
 from rotmod.sky.sources import PointSources
 
 __all__ = [
@@ -42,7 +43,6 @@ _BATCH_CHUNKS = 256
 #: Incident photons per observation batch (bounds memory: 16 bytes each).
 _OBS_BATCH_PHOTONS = 2**23
 
-Progress = Callable[[int, int], Any] | bool | None
 
 
 def _check_instrument(instrument: Any) -> Instrument:
@@ -55,24 +55,6 @@ def _check_count(value: Any, name: str, lo: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lo:
         raise ParameterError(f"{name} must be an integer >= {lo}, got {value!r}")
     return int(value)
-
-
-def _progress_fn(progress: Progress, total: int, desc: str) -> tuple[Callable, Callable]:
-    """A ``(update(done, total), close())`` pair; tqdm only when ``progress is True``."""
-    if progress is None or progress is False:
-        return (lambda done, tot: None), (lambda: None)
-    if progress is True:
-        from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
-
-        bar = tqdm(total=total, desc=desc, unit="photon", unit_scale=True)
-
-        def update(done: int, tot: int) -> None:
-            bar.update(done - bar.n)
-
-        return update, bar.close
-    if callable(progress):
-        return progress, (lambda: None)
-    raise ParameterError(f"progress must be None, a bool or a callable, got {progress!r}")
 
 
 def _mask_params(instrument: Instrument) -> tuple[float, float, float, float, bool]:
@@ -304,7 +286,7 @@ def simulate_profiles(
     counts = np.zeros((m, n_cells), dtype=np.int64)
     root = seed_sequence(seed)
     total = n_cells * n_photons
-    update, close = _progress_fn(progress, total, "MC profiles")
+    update, close = progress_callbacks(progress, total, "MC profiles", "photon")
     done = 0
     try:
         for s in range(0, lo.size, _BATCH_CHUNKS):
@@ -544,7 +526,7 @@ def simulate_observation(
     per_batch = max(1, _OBS_BATCH_PHOTONS // max(chunk_size, 1))
     out_t, out_d, out_s = [], [], []
     total_ms = round(1e3 * float(np.sum(g[:, 1] - g[:, 0])))
-    update, close = _progress_fn(progress, total_ms, "MC observation")
+    update, close = progress_callbacks(progress, total_ms, "MC observation", "photon")
     done = 0.0
     try:
         for s in range(0, pc.shape[0], per_batch):

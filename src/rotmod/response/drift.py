@@ -69,6 +69,12 @@ class DriftResponse(ResponseOperator):
         self.model, self.energy = first.model, first.energy
         self.grid = None
 
+    def components(self) -> list[tuple[np.ndarray | None, ResponseSpec]]:
+        """One ``(weights, spec)`` per attitude interval (see the base class)."""
+        return [(w * pw if pw is not None else w, ps)
+                for w, part in zip(self.weights, self.parts, strict=True)
+                for pw, ps in part.components()]
+
     def _forward(self, sky: np.ndarray) -> np.ndarray:
         out = np.zeros((self.n_det, self.n_time))
         for w, part in zip(self.weights, self.parts, strict=True):

@@ -74,6 +74,26 @@ class ResponseOperator(ABC):
         self.instrument, self.grid, self.time_bins = spec.instrument, spec.grid, spec.time_bins
         self.model, self.energy, self.distance = spec.model, spec.energy, spec.distance
 
+    def components(self) -> list[tuple[np.ndarray | None, ResponseSpec]]:
+        """What the response is a sum of: ``(weights, spec)`` pairs, ``P = sum_k W_k P_k``.
+
+        ``weights`` (``(n_time,)``, or ``None`` for 1) multiply the response of ``spec``
+        bin by bin.  One pair for a response computed for one spec; a drifting
+        observation (:class:`~rotmod.response.DriftResponse`) has one per attitude
+        interval.  This is how the response is re-evaluated at other sky positions
+        (:func:`rotmod.response.columns_at`): a source between pixels.
+
+        Raises
+        ------
+        ParameterError
+            The response has no spec (a matrix from elsewhere).
+        """
+        if self.spec is None:
+            raise ParameterError(
+                "response has no spec (instrument, grid, model, energy), so it cannot be "
+                "evaluated at other sky positions; build it with rotmod.response")
+        return [(None, self.spec)]
+
     @property
     def n_distinct(self) -> int:
         """Leading time bins that determine all (``ResponsePlan.n_distinct``); the others

@@ -11,7 +11,9 @@ from rotmod.sky.celestial import CelestialGrid
 from rotmod.sky.geometry import GRID_KINDS, SkyGeometry, WcsGeometry, grid_from_dict
 from rotmod.sky.grid import SkyGrid
 from rotmod.sky.healpix import HealpixGrid
+from rotmod.sky.points import DirectionList, PositionList
 from rotmod.sky.sources import PointSources
 
-__all__ = ["GRID_KINDS", "Attitude", "AttitudeTable", "CelestialGrid", "HealpixGrid",
-           "PointSources", "SkyGeometry", "SkyGrid", "WcsGeometry", "grid_from_dict"]
+__all__ = ["GRID_KINDS", "Attitude", "AttitudeTable", "CelestialGrid", "DirectionList",
+           "HealpixGrid", "PointSources", "PositionList", "SkyGeometry", "SkyGrid",
+           "WcsGeometry", "grid_from_dict"]

@@ -125,7 +125,8 @@ class SourceFitter:
 
     # -- the linear problem of a model --------------------------------------------------
 
-    def _template(self, model: SkyModel) -> np.ndarray:
+    def template(self, model: SkyModel) -> np.ndarray:
+        """The background template ``T[d, t]`` of ``model`` on these data."""
         n_det, n_t = self.data.shape
         if model.template is None and self.data.background is not None:
             return np.asarray(self.data.background, dtype=float)
@@ -152,7 +153,7 @@ class SourceFitter:
             free.append(model.free_diffuse)
         m0 = np.zeros(self.y.size) if self.m_fixed is None else self.m_fixed.copy()
         if self.fit_background:
-            et = self.exposure * self._template(model)
+            et = self.exposure * self.template(model)
             rows = np.broadcast_to(np.arange(n_det)[:, None], (n_det, n_t))[self.valid]
             bcols = np.zeros((self.y.size, n_det))
             bcols[np.arange(self.y.size), rows] = et[self.valid]

@@ -35,10 +35,16 @@ MAX_ITER = 200
 
 
 def log_likelihood(y: np.ndarray, mu: np.ndarray) -> float:
-    """``sum(y ln mu - mu)``; ``-inf`` where some ``mu <= 0`` has counts."""
+    """``ln L = sum(y ln mu - mu)`` less the constant ``sum(y ln y - y)``.
+
+    Summed as ``y ln(mu / y) + y - mu``, terms that are small near a fit, so that the
+    differences a TS is made of keep their digits (``sum y ln mu`` of a large data set is
+    ~1e8 and would leave ~1e-8 of them).  ``-inf`` where some ``mu <= 0`` has counts.
+    """
     if np.any((mu <= 0) & (y > 0)):
         return -np.inf
-    return float(np.sum(xlogy(y, np.maximum(mu, 1e-300)) - mu))
+    ratio = np.where(y > 0, np.maximum(mu, 1e-300) / np.where(y > 0, y, 1.0), 1.0)
+    return float(np.sum(xlogy(y, ratio) + y - mu))
 
 
 @dataclass(frozen=True)
@@ -50,7 +56,7 @@ class LinearPoissonFit:
     x : ndarray
         Amplitudes at the maximum (>= 0).
     loglike : float
-        ``sum(y ln mu - mu)`` there.
+        ``ln L`` there (:func:`log_likelihood`: less the data's constant).
     mu : ndarray
         Expected counts there.
     hessian : ndarray
@@ -141,7 +147,8 @@ def maximise(
         except np.linalg.LinAlgError:
             d = g[free] / np.maximum(np.diag(Hf), 1e-300)
         decrement = float(g[free] @ d)
-        if decrement < TOL:
+        # Converged: the remaining gain is below TOL or the rounding of ln L itself.
+        if decrement < TOL + 1e-13 * abs(ll):
             break
         step = 1.0
         while True:
@@ -150,7 +157,7 @@ def maximise(
             mun = m0 + A @ xn
             lln = log_likelihood(y, mun)
             # Armijo on the projected step; the projection can only shorten it.
-            if lln >= ll + 1e-4 * float(g[free] @ (xn[free] - x[free])) or step < 1e-12:
+            if lln >= ll + 1e-4 * float(g[free] @ (xn[free] - x[free])) or step < 1e-9:
                 break
             step *= 0.5
         if lln < ll:

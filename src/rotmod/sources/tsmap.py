@@ -39,107 +39,196 @@ from rotmod.sources.model import SkyModel
 
 __all__ = ["TSMap", "ts_map"]
 
-#: Newton steps per pixel at most; convergence (relative step < 1e-10) takes ~5-15.
+#: Newton steps at most (each solve converges in ~5-15).
 _MAX_NEWTON = 60
 
 
 @nb.njit(cache=True)
-def _loglike_gain(c, y, m0, f):  # pragma: no cover - numba
-    """``sum y ln(1 + f c / m0) - f c``: ln L(f) - ln L(0)."""
+def _loglike(c, y, m_rest, det, tb, f, b):  # pragma: no cover - numba
+    """``ln L`` of ``mu = m_rest + f c + b[det] tb`` (-inf if a mu <= 0 has counts), as
+    ``sum y ln(mu / y) + y - mu``: ``sum y ln mu - mu`` less a constant, in terms that are
+    small near a fit, so that differences of ln L keep their digits."""
     acc = 0.0
-    for i in range(c.size):
-        ci = c[i]
-        if ci > 0.0:
-            acc += y[i] * np.log1p(f * ci / m0[i]) - f * ci
+    for i in range(y.size):
+        mu = m_rest[i] + f * c[i] + b[det[i]] * tb[i]
+        if y[i] > 0.0:
+            if mu <= 0.0:
+                return -np.inf
+            acc += y[i] * np.log(mu / y[i]) + y[i] - mu
+        else:
+            acc -= mu
     return acc
 
 
 @nb.njit(cache=True)
-def _slope_curv(c, y, m0, f):  # pragma: no cover - numba
-    """First derivative and minus the second of ``ln L`` at ``f``."""
-    g = 0.0
-    h = 0.0
-    for i in range(c.size):
-        ci = c[i]
-        if ci > 0.0:
-            r = y[i] / (m0[i] + f * ci)
-            g += ci * (r - 1.0)
-            h += ci * ci * r / (m0[i] + f * ci)
-    return g, h
+def _sums(c, y, m_rest, det, tb, f, b, gb, hb, hfb):  # pragma: no cover - numba
+    """Gradient and information of ``(f, b)``: returns ``(g_f, h_ff)``, fills the rest."""
+    gb[:] = 0.0
+    hb[:] = 0.0
+    hfb[:] = 0.0
+    gf = 0.0
+    hff = 0.0
+    for i in range(y.size):
+        mu = m_rest[i] + f * c[i] + b[det[i]] * tb[i]
+        r = y[i] / mu
+        w = r / mu
+        d = det[i]
+        gf += c[i] * (r - 1.0)
+        hff += c[i] * c[i] * w
+        gb[d] += tb[i] * (r - 1.0)
+        hb[d] += tb[i] * tb[i] * w
+        hfb[d] += c[i] * tb[i] * w
+    return gf, hff
 
 
 @nb.njit(cache=True)
-def _asimov_ts(c, m0, s):  # pragma: no cover - numba
-    """TS of the Asimov data ``m0 + s c`` and its derivative in ``s``."""
-    ts = 0.0
-    d = 0.0
-    for i in range(c.size):
-        ci = c[i]
-        if ci > 0.0:
-            lg = np.log1p(s * ci / m0[i])
-            ts += 2.0 * ((m0[i] + s * ci) * lg - s * ci)
-            d += 2.0 * ci * lg
-    return ts, d
+def _fit_background(c, y, m_rest, det, tb, f, b, gb, hb, hfb):  # pragma: no cover - numba
+    """Maximise over the background levels ``b`` (in place) with ``f`` held: each detector's
+    level is a separate concave problem, solved by Newton kept positive.  Returns ln L."""
+    for _ in range(_MAX_NEWTON):
+        _sums(c, y, m_rest, det, tb, f, b, gb, hb, hfb)
+        worst = 0.0
+        for d in range(b.size):
+            if hb[d] > 0.0:
+                new = b[d] + gb[d] / hb[d]
+                if new <= 0.0:
+                    new = 0.5 * b[d]
+                worst = max(worst, abs(new - b[d]) / max(b[d], 1e-300))
+                b[d] = new
+        if worst < 1e-10:
+            break
+    return _loglike(c, y, m_rest, det, tb, f, b)
+
+
+@nb.njit(cache=True)
+def _fit_pixel(c, y, m_rest, det, tb, b, gb, hb, hfb):  # pragma: no cover - numba
+    """Maximise over ``f >= 0`` and the levels ``b`` (in place) from ``f = 0``: Newton on
+    the joint problem (an arrow-shaped Hessian, solved through its Schur complement) with a
+    backtracking line search.  Returns ``(f, ln L, Schur information of f)``."""
+    f = 0.0
+    ll = _loglike(c, y, m_rest, det, tb, f, b)
+    schur = 0.0
+    for _ in range(_MAX_NEWTON):
+        gf, hff = _sums(c, y, m_rest, det, tb, f, b, gb, hb, hfb)
+        schur = hff
+        rhs = gf
+        for d in range(b.size):
+            if hb[d] > 0.0:
+                schur -= hfb[d] * hfb[d] / hb[d]
+                rhs -= hfb[d] * gb[d] / hb[d]
+        df = rhs / schur if schur > 0.0 else 0.0
+        if f <= 0.0 and df < 0.0:
+            df = 0.0  # the bound is active: only the levels move
+        dec = df * gf
+        for d in range(b.size):
+            if hb[d] > 0.0:
+                dec += (gb[d] - hfb[d] * df) / hb[d] * gb[d]
+        # Converged: the remaining gain is below 1e-9 or the rounding of ln L itself.
+        if dec < 1e-9 + 1e-13 * abs(ll):
+            break
+        t = 1.0
+        b_old = b.copy()
+        improved = False
+        for _ls in range(30):
+            fn = max(f + t * df, 0.0)
+            ok = True
+            for d in range(b.size):
+                if hb[d] > 0.0:
+                    b[d] = b_old[d] + t * (gb[d] - hfb[d] * df) / hb[d]
+                    if b[d] <= 0.0:
+                        ok = False
+            if ok:
+                lln = _loglike(c, y, m_rest, det, tb, fn, b)
+                if lln >= ll:
+                    f = fn
+                    ll = lln
+                    improved = True
+                    break
+            t *= 0.5
+        if not improved:
+            b[:] = b_old
+            break
+    return f, ll, schur
 
 
 @nb.njit(parallel=True, cache=True)
-def _ts_pixels(C, y, m0, q_ul, q_sens, out):  # pragma: no cover - numba
-    """Fill ``out[k] = (ts, flux, flux_err, flux_ul, sensitivity)`` for columns ``C[k]``."""
+def _ts_pixels(C, y, m_rest, det, tb, b0, q_ul, q_sens, out):  # pragma: no cover - numba
+    # q_ul or q_sens <= 0: that reading is skipped (NaN).
+    """Fill ``out[k] = (ts, flux, flux_err, flux_ul, sensitivity)`` for columns ``C[k]``:
+    a test source with the background levels ``b`` refitted (from ``b0``, the null's)."""
+    n_det = b0.size
+    ll0 = _loglike(C[0], y, m_rest, det, tb, 0.0, b0)
     for k in nb.prange(C.shape[0]):
         c = C[k]
         csum = 0.0
         for i in range(c.size):
             csum += c[i]
         if csum <= 0.0:  # a pixel the data cannot see
-            out[k, 0] = np.nan
-            out[k, 1] = np.nan
-            out[k, 2] = np.nan
-            out[k, 3] = np.nan
-            out[k, 4] = np.nan
+            for j in range(5):
+                out[k, j] = np.nan
             continue
+        b = b0.copy()
+        gb = np.empty(n_det)
+        hb = np.empty(n_det)
+        hfb = np.empty(n_det)
+        gf, schur = _sums(c, y, m_rest, det, tb, 0.0, b, gb, hb, hfb)
+        for d in range(n_det):
+            if hb[d] > 0.0:
+                schur -= hfb[d] * hfb[d] / hb[d]
         f = 0.0
-        g, h = _slope_curv(c, y, m0, 0.0)
-        if g > 0.0:
-            for _ in range(_MAX_NEWTON):
-                if h <= 0.0:
-                    break
-                step = g / h
-                f += step
-                if step <= 1e-10 * f:
-                    break
-                g, h = _slope_curv(c, y, m0, f)
-            g, h = _slope_curv(c, y, m0, f)
-        ll = _loglike_gain(c, y, m0, f)
-        out[k, 0] = max(2.0 * ll, 0.0)
+        ll = ll0
+        if gf > 0.0:  # the profile's slope at 0 (the levels are the null's optimum)
+            f, ll, schur = _fit_pixel(c, y, m_rest, det, tb, b, gb, hb, hfb)
+        out[k, 0] = max(2.0 * (ll - ll0), 0.0)
         out[k, 1] = f
-        out[k, 2] = 1.0 / np.sqrt(h) if h > 0.0 else np.inf
-        # Upper limit: 2 (l(f) - l(u)) = q_ul for u > f; convex increasing in u, so Newton
-        # converges from either side of the root after at most one overshoot.
-        u = f + (np.sqrt(q_ul) / np.sqrt(h) if h > 0.0 else q_ul / (2.0 * csum))
+        out[k, 2] = 1.0 / np.sqrt(schur) if schur > 0.0 else np.inf
+        # Upper limit: 2 (ln L - profile(u)) = q_ul above f.  The profile is concave, so
+        # this is convex increasing in u and Newton (slope from the envelope theorem: the
+        # profile's derivative is the partial in f at the refitted levels) converges after
+        # at most one overshoot.
+        out[k, 3] = np.nan
+        out[k, 4] = np.nan
+        if q_ul <= 0.0:
+            continue
+        u = f + (np.sqrt(q_ul / schur) if schur > 0.0 else q_ul / (2.0 * csum))
+        bu = b.copy()
         for _ in range(_MAX_NEWTON):
-            gu, _hu = _slope_curv(c, y, m0, u)
-            val = 2.0 * (ll - _loglike_gain(c, y, m0, u)) - q_ul
+            llu = _fit_background(c, y, m_rest, det, tb, u, bu, gb, hb, hfb)
+            gu, _ = _sums(c, y, m_rest, det, tb, u, bu, gb, hb, hfb)
+            val = 2.0 * (ll - llu) - q_ul
             slope = -2.0 * gu
             if slope <= 0.0:
-                u = f + 2.0 * (u - f)
+                u = f + 2.0 * (u - f) + 1e-300
                 continue
             du = val / slope
             u = max(u - du, 0.5 * (u + f))
-            if abs(du) <= 1e-10 * u:
+            if abs(du) <= 1e-9 * u:
                 break
         out[k, 3] = u
-        # Sensitivity: TS of the Asimov data reaches q_sens (convex increasing in s).
-        fisher = 0.0
-        for i in range(c.size):
-            fisher += c[i] * c[i] / m0[i]
-        s = np.sqrt(q_sens / fisher)
+        if q_sens <= 0.0:
+            continue
+        # Sensitivity: the flux s whose Asimov data m0 + s c reach TS = q_sens against the
+        # null refitted to them (the levels absorb what of the source they can).  Newton
+        # with dTS/ds = 2 sum c ln(y_A / mu_null) (envelope theorem again).
+        ya = np.empty(y.size)
+        s = np.sqrt(q_sens / schur) if schur > 0.0 else 1.0
+        bn = b0.copy()
         for _ in range(_MAX_NEWTON):
-            ts, d = _asimov_ts(c, m0, s)
-            if d <= 0.0:
-                break
-            ds = (ts - q_sens) / d
+            for i in range(y.size):
+                ya[i] = m_rest[i] + b0[det[i]] * tb[i] + s * c[i]
+            lln = _fit_background(c, ya, m_rest, det, tb, 0.0, bn, gb, hb, hfb)
+            lla = _loglike(c, ya, m_rest, det, tb, s, b0)
+            ts = 2.0 * (lla - lln)
+            dts = 0.0
+            for i in range(y.size):
+                if c[i] > 0.0:
+                    dts += 2.0 * c[i] * np.log(ya[i] / (m_rest[i] + bn[det[i]] * tb[i]))
+            if dts <= 0.0:
+                s *= 2.0
+                continue
+            ds = (ts - q_sens) / dts
             s = max(s - ds, 0.5 * s)
-            if abs(ds) <= 1e-10 * s:
+            if abs(ds) <= 1e-9 * s:
                 break
         out[k, 4] = s
 
@@ -185,17 +274,48 @@ class TSMap:
         return k, float(flat[k])
 
 
-def null_expectation(fitter: SourceFitter, model: SkyModel | None) -> tuple[SkyModel,
-                                                                           np.ndarray]:
-    """The fitted null model and its expected counts in the valid bins (all > 0)."""
-    if model is None:
-        model = SkyModel()
-    model, res = fitter.maximise(model)
-    m0 = res.mu
-    if np.any((m0 <= 0) & (fitter.y > 0)) or np.any(m0 < 0):
+def null_state(fitter: SourceFitter, model: SkyModel | None) -> tuple[np.ndarray, ...]:
+    """The fitted null model as the kernels take it: ``(m_rest, det, tb, b0)``.
+
+    ``m_rest`` are the expected counts of everything but the fitted background levels,
+    ``det`` each valid bin's detector, ``tb`` its background template times exposure (0
+    when the background is known, not fitted) and ``b0`` the null's levels.
+    """
+    model, res = fitter.maximise(SkyModel() if model is None else model)
+    n_det, n_t = fitter.data.shape
+    det = np.broadcast_to(np.arange(n_det)[:, None], (n_det, n_t))[fitter.valid].astype(np.int64)
+    if fitter.fit_background:
+        tb = (fitter.exposure * fitter.template(model))[fitter.valid]
+        b0 = np.asarray(model.background, dtype=float)
+    else:
+        tb, b0 = np.zeros(det.size), np.zeros(n_det)
+    m_rest = res.mu - b0[det] * tb
+    if np.any(m_rest < -1e-9 * np.abs(res.mu).max()):
+        raise ParameterError("the null model's expected counts are negative")
+    if np.any((res.mu <= 0) & (fitter.y > 0)):
         raise ParameterError("the model predicts no counts in bins that have counts: fit a "
                              "background (or give a positive known background)")
-    return model, np.maximum(m0, 1e-300)
+    return np.maximum(m_rest, 0.0), det, np.ascontiguousarray(tb), b0
+
+
+def test_source_scan(fitter: SourceFitter, state: tuple[np.ndarray, ...], columns: np.ndarray,
+                     q_ul: float = 2.706, q_sens: float = 25.0) -> np.ndarray:
+    """``(ts, flux, flux_err, flux_ul, sensitivity)`` of a test source per column.
+
+    Parameters
+    ----------
+    fitter : SourceFitter
+    state : tuple
+        :func:`null_state` of the null model.
+    columns : ndarray, shape (n_det, n_time, k)
+        Response columns of the test positions.
+    """
+    m_rest, det, tb, b0 = state
+    ec = (fitter.exposure[:, :, None] * columns)[fitter.valid]
+    out = np.empty((columns.shape[2], 5))
+    _ts_pixels(np.ascontiguousarray(ec.T, dtype=np.float64), fitter.y, m_rest, det, tb,
+               np.array(b0, dtype=float), float(q_ul), float(q_sens), out)
+    return out
 
 
 def ts_map(
@@ -235,22 +355,19 @@ def ts_map(
     if not (np.isfinite(sensitivity_ts) and sensitivity_ts > 0):
         raise ParameterError(f"sensitivity_ts must be > 0, got {sensitivity_ts!r}")
     f = SourceFitter(response, data) if fitter is None else fitter
-    _, m0 = null_expectation(f, model)
+    state = null_state(f, model)
     n_bins, n_sky = f.y.size, response.n_sky
     per_pixel = 8.0 * (2 * n_bins + response.n_det * response.n_time)
     check_memory(per_pixel + 8.0 * 6 * n_sky, f"a TS map of {n_sky} pixels",
                  hint="use fewer pixels")
     width = int(max(1, min(n_sky, memory_budget() // 8 // per_pixel, 4096)))
     out = np.empty((n_sky, 5))
-    blocks = list(range(0, n_sky, width))
     update, close = progress_callbacks(progress, n_sky, "TS map", "pixel")
     try:
-        for n0 in blocks:
+        for n0 in range(0, n_sky, width):
             n1 = min(n0 + width, n_sky)
-            cols = response.block(n=(n0, n1))
-            ec = (f.exposure[:, :, None] * cols)[f.valid]      # (n_bins, width)
-            _ts_pixels(np.ascontiguousarray(ec.T), f.y, m0, q_ul, float(sensitivity_ts),
-                       out[n0:n1])
+            out[n0:n1] = test_source_scan(f, state, response.block(n=(n0, n1)), q_ul,
+                                          float(sensitivity_ts))
             update(n1, n_sky)
     finally:
         close()

@@ -35,7 +35,7 @@ from rotmod.response.operator import ResponseOperator
 from rotmod.sources.likelihood import LinearPoissonFit, log_likelihood, maximise
 from rotmod.sources.model import PointSource, SkyModel, tangent_basis
 
-__all__ = ["FitResult", "SourceFitter", "fit"]
+__all__ = ["FitResult", "SourceFitter", "fit", "fit_with"]
 
 
 def ul_threshold(confidence: float) -> float:
@@ -216,11 +216,16 @@ class SourceFitter:
 
     # -- positions ------------------------------------------------------------------------
 
-    def fit_positions(self, model: SkyModel, *, scale: float | None = None) -> SkyModel:
-        """Fit each free position (one source at a time, all amplitudes re-maximised)."""
+    def fit_positions(self, model: SkyModel, *, only: list[int] | None = None,
+                      scale: float | None = None) -> SkyModel:
+        """Fit each free position (one source at a time, all amplitudes re-maximised).
+
+        ``only`` restricts the fit to those source indices; ``scale`` is the first step
+        (rad; default a quarter of the instrument's angular scale ``b / L``).
+        """
         step = 0.25 * geometric_scale(self.response) if scale is None else float(scale)
         for k, src in enumerate(model.sources):
-            if not src.free_position:
+            if not src.free_position or (only is not None and k not in only):
                 continue
             v0 = src.vector()
             e1, e2 = tangent_basis(v0)
@@ -326,12 +331,20 @@ def fit(
     """
     if not isinstance(model, SkyModel):
         raise ParameterError(f"model must be a SkyModel, got {type(model)}")
-    level = ul_threshold(ul_confidence)
-    f = SourceFitter(response, data)
-    m, res = f.maximise(model)
+    ul_threshold(ul_confidence)
+    fitter = SourceFitter(response, data)
+    m = fitter.maximise(model)[0]
     if any(s.free_position for s in m.sources):
-        m = f.fit_positions(m)
-        m, res = f.maximise(m)
+        m = fitter.fit_positions(m)
+    return fit_with(fitter, m, errors=errors, ul_confidence=ul_confidence)
+
+
+def fit_with(fitter: SourceFitter, model: SkyModel, *, errors: bool = True,
+             ul_confidence: float = 0.95) -> FitResult:
+    """The amplitudes of ``model`` fitted (positions as they are), with the per-source
+    statistics of :func:`fit`."""
+    level = ul_threshold(ul_confidence)
+    m, res = fitter.maximise(model)
     k = len(m.sources)
     ts = np.full(k, np.nan)
     err = np.full((k, 2), np.nan)
@@ -339,11 +352,11 @@ def fit(
     if errors and k:
         cov = res.covariance()
         for i in range(k):
-            ts[i] = f.source_ts(m, i, res.loglike)
+            ts[i] = fitter.source_ts(m, i, res.loglike)
             sigma = float(np.sqrt(max(cov[i, i], 0.0)))
-            lo, hi = f.flux_interval(m, i, res.loglike, 1.0, sigma)
+            lo, hi = fitter.flux_interval(m, i, res.loglike, 1.0, sigma)
             flux = m.sources[i].flux
             err[i] = (flux - lo, hi - flux)
-            ul[i] = f.flux_interval(m, i, res.loglike, level, sigma)[1]
-    return FitResult(m, res.loglike, ts, err, ul, ul_confidence, f.expected(m),
-                     int(f.y.size))
+            ul[i] = fitter.flux_interval(m, i, res.loglike, level, sigma)[1]
+    return FitResult(m, res.loglike, ts, err, ul, ul_confidence, fitter.expected(m),
+                     int(fitter.y.size))

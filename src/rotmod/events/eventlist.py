@@ -147,6 +147,25 @@ class EventList:
         """Mask angle ``xi`` (Quantity in rad, not wrapped) of every event."""
         return self.instrument.mask_angle(self.time) + self.start_phase
 
+    def within(self, t_start: Any, t_stop: Any) -> EventList | None:
+        """The events and good time in ``[t_start, t_stop)`` (s); ``None`` when no good
+        time falls there (an interval without exposure)."""
+        t0 = as_scalar(t_start, "t_start", u.s)
+        t1 = as_scalar(t_stop, "t_stop", u.s)
+        if not t1 > t0:
+            raise ParameterError(f"t_stop must be > t_start ({t0:g} s), got {t1:g} s")
+        g = np.clip(self.gti, t0, t1)
+        g = g[g[:, 1] > g[:, 0]]
+        if g.size == 0:
+            return None
+        keep = (self.time >= t0) & (self.time < t1)
+        return EventList(
+            self.time[keep], self.detector[keep], self.energy[keep], self.instrument, g,
+            self.start_phase, float(g[0, 0]), float(g[-1, 1]),
+            None if self.source is None else self.source[keep], self.sources,
+            dict(self.meta), self.attitude,
+        )
+
     def select(self, mask: np.ndarray) -> EventList:
         """A new event list holding the events where boolean ``mask`` is true."""
         mask = np.asarray(mask, dtype=bool)

@@ -29,6 +29,8 @@ from rotmod.errors import ParameterError
 from rotmod.reconstruction.data import PoissonData
 from rotmod.response.columns import columns_at
 from rotmod.response.operator import ResponseOperator
+from rotmod.sky.attitude import Attitude
+from rotmod.sky.sources import PointSources
 
 __all__ = ["PointSource", "SkyModel"]
 
@@ -233,6 +235,30 @@ class SkyModel:
     def expected_counts(self, response: ResponseOperator, exposure: Any) -> np.ndarray:
         """``exposure * rates`` (counts), ``exposure`` in s per bin (scalar or array)."""
         return np.asarray(exposure, dtype=float) * self.rates(response)
+
+    def point_sources(self, energy: Any, attitude: Attitude | None = None) -> PointSources:
+        """The sources as :class:`rotmod.sky.PointSources` for the Monte Carlo
+        (:func:`rotmod.montecarlo.simulate_observation`), with ``background`` its flat
+        per-detector rate: the same sky injected photon by photon.
+
+        Parameters
+        ----------
+        energy : float or Quantity
+            Photon energy (keV).
+        attitude : Attitude, optional
+            Places sky positions in the instrument frame (required for SkyCoord sources).
+        """
+        if not self.sources:
+            raise ParameterError("the model has no point sources to simulate")
+        if self.sources[0].frame == "celestial":
+            if not isinstance(attitude, Attitude):
+                raise ParameterError("attitude (an Attitude) is required to place sky "
+                                     "positions in the instrument frame")
+            theta, phi = attitude.to_instrument(positions_of(self.sources))
+        else:
+            th, ph = positions_of(self.sources)
+            theta, phi = th * u.deg, ph * u.deg
+        return PointSources(theta, phi, rate=[s.flux for s in self.sources], energy=energy)
 
     def simulate(self, response: ResponseOperator, exposure: Any,
                  seed: int | np.random.Generator | None = None) -> PoissonData:

@@ -40,6 +40,10 @@ __all__ = ["Region", "localise"]
 EDGE_DROP = 13.8
 #: Points per side of the square (odd: the fitted position is the centre point).
 N_SIDE = 41
+#: Largest half-width of the square (rad, 20 deg): the gnomonic square stays nearly
+#: equal-area (pixel areas within 6 %), and a source too faint to be localised within it is
+#: reported as such (``Region.closed`` False), not given an ever larger square.
+MAX_HALF = np.radians(20.0)
 
 
 def vectors_to_positions(frame: str, v: np.ndarray) -> Any:
@@ -68,6 +72,11 @@ class Region:
         TS of a test source at each point (before the systematic term).
     systematic : float
         Systematic error per axis (deg) folded in.
+    closed : bool
+        Whether the surface fell by :data:`EDGE_DROP` at the square's edge.  ``False``:
+        the source is too faint to be localised within :data:`MAX_HALF` (TS below ~14),
+        so the region's probability beyond the square is missing and its sizes are lower
+        bounds.
     levels : dict
         Density threshold of each computed containment.
     """
@@ -77,6 +86,7 @@ class Region:
     density: np.ndarray
     ts: np.ndarray
     systematic: float
+    closed: bool = True
     levels: dict[float, float] = field(default_factory=dict)
 
     def _basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -202,12 +212,14 @@ def localise(
     ts_k = max(fitter.source_ts(model, k, fitter.maximise(model)[1].loglike), 1.0)
     # A Gaussian surface has sigma ~ scale / sqrt(TS): start at ~4 sigma, then adapt.
     half = 4.0 * geometric_scale(fitter.response) / np.sqrt(ts_k) + 4.0 * sys_rad
-    for _ in range(8):
+    half = min(half, MAX_HALF)
+    for _ in range(12):
         o, ts = _surface(fitter, null, source, half, n_side)
         drop = ts.max() - ts
         edge = np.concatenate([drop[0], drop[-1], drop[:, 0], drop[:, -1]])
-        if edge.min() < EDGE_DROP:
-            half *= 2.0
+        closed = bool(edge.min() >= EDGE_DROP)
+        if not closed and half < MAX_HALF:
+            half = min(2.0 * half, MAX_HALF)
             continue
         # Too coarse: the 90 % region a few points across, and no systematic needing room.
         inner = np.count_nonzero(drop <= 4.61)
@@ -221,4 +233,4 @@ def localise(
         step = float(o[1] - o[0])
         density = gaussian_filter(density, sys_rad / step, mode="constant")
     density /= density.sum()
-    return Region(source, o, density, ts, float(np.degrees(sys_rad)))
+    return Region(source, o, density, ts, float(np.degrees(sys_rad)), closed)

@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import xlogy
 
 from rotmod.errors import ParameterError
 
@@ -37,14 +36,16 @@ MAX_ITER = 200
 def log_likelihood(y: np.ndarray, mu: np.ndarray) -> float:
     """``ln L = sum(y ln mu - mu)`` less the constant ``sum(y ln y - y)``.
 
-    Summed as ``y ln(mu / y) + y - mu``, terms that are small near a fit, so that the
+    Summed as ``y ln(mu / y) + y - mu`` (the logarithm as ``log1p((mu - y) / y)``), terms that are small near a fit, so that the
     differences a TS is made of keep their digits (``sum y ln mu`` of a large data set is
     ~1e8 and would leave ~1e-8 of them).  ``-inf`` where some ``mu <= 0`` has counts.
     """
     if np.any((mu <= 0) & (y > 0)):
         return -np.inf
-    ratio = np.where(y > 0, np.maximum(mu, 1e-300) / np.where(y > 0, y, 1.0), 1.0)
-    return float(np.sum(xlogy(y, ratio) + y - mu))
+    # ln(mu / y) as log1p((mu - y) / y): exact to rounding of the small difference.
+    pos = y > 0
+    excess = np.where(pos, (np.maximum(mu, 1e-300) - y) / np.where(pos, y, 1.0), 0.0)
+    return float(np.sum(np.where(pos, y * np.log1p(excess) - (mu - y), -mu)))
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from rotmod.errors import ParameterError
 from rotmod.response.columns import columns_at
 from rotmod.sources.fit import SourceFitter, geometric_scale
 from rotmod.sources.model import PointSource, SkyModel, tangent_basis
-from rotmod.sources.tsmap import null_state, test_source_scan
+from rotmod.sources.tsmap import null_state, scan_test_source
 
 __all__ = ["Region", "localise"]
 
@@ -171,7 +171,7 @@ def _surface(fitter: SourceFitter, null: SkyModel, source: PointSource, half: fl
     v = v0[None, :] + xx.ravel()[:, None] * e1 + yy.ravel()[:, None] * e2
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     cols = columns_at(fitter.response, vectors_to_positions(source.frame, v))
-    out = test_source_scan(fitter, null_state(fitter, null), cols)
+    out = scan_test_source(fitter, null_state(fitter, null), cols)
     return o, np.nan_to_num(out[:, 0], nan=0.0).reshape(n, n)
 
 def localise(

@@ -54,7 +54,7 @@ def _loglike(c, y, m_rest, det, tb, f, b):  # pragma: no cover - numba
         if y[i] > 0.0:
             if mu <= 0.0:
                 return -np.inf
-            acc += y[i] * np.log(mu / y[i]) + y[i] - mu
+            acc += y[i] * np.log1p((mu - y[i]) / y[i]) + y[i] - mu
         else:
             acc -= mu
     return acc
@@ -298,7 +298,7 @@ def null_state(fitter: SourceFitter, model: SkyModel | None) -> tuple[np.ndarray
     return np.maximum(m_rest, 0.0), det, np.ascontiguousarray(tb), b0
 
 
-def test_source_scan(fitter: SourceFitter, state: tuple[np.ndarray, ...], columns: np.ndarray,
+def scan_test_source(fitter: SourceFitter, state: tuple[np.ndarray, ...], columns: np.ndarray,
                      q_ul: float = 2.706, q_sens: float = 25.0) -> np.ndarray:
     """``(ts, flux, flux_err, flux_ul, sensitivity)`` of a test source per column.
 
@@ -366,7 +366,7 @@ def ts_map(
     try:
         for n0 in range(0, n_sky, width):
             n1 = min(n0 + width, n_sky)
-            out[n0:n1] = test_source_scan(f, state, response.block(n=(n0, n1)), q_ul,
+            out[n0:n1] = scan_test_source(f, state, response.block(n=(n0, n1)), q_ul,
                                           float(sensitivity_ts))
             update(n1, n_sky)
     finally:

@@ -22,7 +22,7 @@ def test_maximum_matches_an_independent_optimiser(rng):
         A, y, m0 = _problem(rng)
         res = maximise(A, y, m0)
 
-        def neg(x):
+        def neg(x, A=A, y=y, m0=m0):
             mu = m0 + A @ x
             return -(np.sum(y * np.log(mu) - mu)), -(A.T @ (y / mu - 1.0))
 

@@ -36,9 +36,10 @@ MAX_ITER = 200
 def log_likelihood(y: np.ndarray, mu: np.ndarray) -> float:
     """``ln L = sum(y ln mu - mu)`` less the constant ``sum(y ln y - y)``.
 
-    Summed as ``y ln(mu / y) + y - mu`` (the logarithm as ``log1p((mu - y) / y)``), terms that are small near a fit, so that the
-    differences a TS is made of keep their digits (``sum y ln mu`` of a large data set is
-    ~1e8 and would leave ~1e-8 of them).  ``-inf`` where some ``mu <= 0`` has counts.
+    Summed as ``y ln(mu / y) + y - mu`` (the logarithm as ``log1p((mu - y) / y)``), terms
+    that are small near a fit, so that the differences a TS is made of keep their digits
+    (``sum y ln mu`` of a large data set is ~1e8 and would leave ~1e-8 of them).
+    ``-inf`` where some ``mu <= 0`` has counts.
     """
     if np.any((mu <= 0) & (y > 0)):
         return -np.inf

@@ -19,7 +19,7 @@ from astropy.table import Table
 from rotmod.cli import build_parser, main
 from rotmod.io import read_events
 from rotmod.io.images import read_image
-from rotmod.response.parallel import Progress
+from rotmod.progress import Progress
 from rotmod.sky import AttitudeTable
 
 #: The true source (ICRS, deg), 0.8 deg from the mid-observation pointing.

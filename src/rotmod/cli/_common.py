@@ -19,8 +19,8 @@ from rotmod.io import figures as io_figures
 from rotmod.io import tables as io_tables
 from rotmod.io.atomic import check_overwrite
 from rotmod.io.config import list_presets, load_instrument_config
+from rotmod.progress import Progress
 from rotmod.registry import Registry
-from rotmod.response.parallel import Progress
 from rotmod.sky import Attitude, AttitudeTable, SkyGeometry
 
 if TYPE_CHECKING:

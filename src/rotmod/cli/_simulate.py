@@ -35,7 +35,7 @@ from rotmod.cli._common import (
 )
 from rotmod.io import write_events
 from rotmod.montecarlo import simulate_drift, simulate_observation
-from rotmod.response.parallel import Progress
+from rotmod.progress import Progress
 from rotmod.sky import AttitudeTable, PointSources
 
 #: Source rate when a --source or --sky-source gives none (photons/s per detector, no mask).

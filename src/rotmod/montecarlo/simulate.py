@@ -27,7 +27,7 @@ from rotmod.geometry import Instrument, disc_flux
 from rotmod.limits import check_memory
 from rotmod.montecarlo import _transport as tr
 from rotmod.montecarlo._rng import chunk_states, seed_sequence
-from rotmod.progress import Progress, progress_callbacks
+from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.sky.sources import PointSources
 
 __all__ = [
@@ -168,7 +168,7 @@ def simulate_profiles(
     n_photons: int = 100_000,
     seed: Any = None,
     chunk_size: int = DEFAULT_CHUNK,
-    progress: Progress = None,
+    progress: ProgressArg = None,
     distance: Any = None,
     poisson: bool = False,
 ) -> MCProfiles:
@@ -407,7 +407,7 @@ def simulate_observation(
     background_energy: Any = None,
     seed: Any = None,
     chunk_size: int = DEFAULT_CHUNK,
-    progress: Progress = None,
+    progress: ProgressArg = None,
     meta: dict[str, Any] | None = None,
     attitude: Any = None,
     resolution: Any = None,

@@ -14,9 +14,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
-import sys
-import threading
-import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -24,8 +21,9 @@ import numpy as np
 
 from rotmod._deps import optional_import
 from rotmod.errors import ParameterError
+from rotmod.progress import Progress
 
-__all__ = ["Progress", "block_grid", "block_ranges", "get_client", "iter_blocks", "map_blocks"]
+__all__ = ["block_grid", "block_ranges", "get_client", "iter_blocks", "map_blocks"]
 
 log = logging.getLogger(__name__)
 
@@ -149,103 +147,6 @@ def get_client(scheduler: str | None = None, client: Any = None) -> Iterator[Any
         c.close()
 
 
-#: Seconds between progress lines when stderr is not a terminal (logs, batch jobs, CI).
-PROGRESS_INTERVAL = 5.0
-
-
-def _interactive() -> bool:
-    """Whether a progress bar is seen: stderr is a terminal, or a Jupyter kernel (whose
-    stderr is no TTY but shows tqdm's widget) imported this process's code."""
-    return sys.stderr.isatty() or "ipykernel" in sys.modules
-
-
-class Progress:
-    """Progress of ``total`` steps: a tqdm bar on a terminal, log lines everywhere else.
-
-    On a terminal (stderr is a TTY) or in a Jupyter kernel it draws a tqdm bar.  Off a
-    terminal (a log file, a batch job) a bar would be a wall of carriage returns, so it logs
-    ``desc: done/total (pct), elapsed`` on the ``rotmod.response.parallel`` logger at INFO
-    every ``interval`` seconds instead (configure :mod:`logging` to see them; the command
-    line does), from a daemon thread:
-    the line comes even while no step completes (numba compiling the first kernel can take
-    minutes), so a long job is never silent.  The first line comes after ``interval``
-    seconds, so short work logs nothing.
-
-    Use as a context manager; :meth:`update` adds steps and :meth:`update_to` has the
-    ``progress(done, total)`` signature of the library's callbacks
-    (:func:`rotmod.montecarlo.simulate_observation`, ...).
-
-    Parameters
-    ----------
-    total : int or None
-        Number of steps (``None``: unknown, e.g. solver iterations).
-    desc : str
-        What is progressing (the start of each line).
-    unit : str
-        Name of a step.
-    interval : float
-        Seconds between log lines off a terminal.
-    tty : bool, optional
-        Force the bar (``True``) or the log lines (``False``); default a bar when stderr is
-        a TTY or the code runs in a Jupyter kernel.
-    """
-
-    def __init__(self, total: int | None, desc: str, unit: str = "it", *,
-                 interval: float = PROGRESS_INTERVAL, tty: bool | None = None) -> None:
-        self.total, self.desc, self.unit, self.done = total, desc, unit, 0
-        self.interval = float(interval)
-        self._t0 = time.monotonic()
-        self._stop = threading.Event()
-        self._bar: Any = None
-        self._thread: threading.Thread | None = None
-        if _interactive() if tty is None else tty:
-            from tqdm.auto import tqdm  # only with a progress bar (~20 ms)
-
-            self._bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
-        else:
-            self._thread = threading.Thread(target=self._beat, name="rotmod-progress",
-                                            daemon=True)
-            self._thread.start()
-
-    def line(self) -> str:
-        """The progress line: ``desc: done/total unit (pct), elapsed s``."""
-        elapsed = time.monotonic() - self._t0
-        if self.total:
-            return (f"{self.desc}: {self.done}/{self.total} {self.unit} "
-                    f"({100.0 * self.done / self.total:.0f}%), {elapsed:.0f} s")
-        return f"{self.desc}: {self.done} {self.unit}, {elapsed:.0f} s"
-
-    def _beat(self) -> None:
-        while not self._stop.wait(self.interval):
-            log.info("%s", self.line())
-
-    def update(self, n: int = 1) -> None:
-        """``n`` more steps done."""
-        self.done += int(n)
-        if self._bar is not None:
-            self._bar.update(int(n))
-
-    def update_to(self, done: int, total: int | None = None) -> None:
-        """``done`` steps of ``total`` (a ``progress(done, total)`` callback)."""
-        if total is not None and total != self.total:
-            self.total = int(total)
-            if self._bar is not None:
-                self._bar.total = self.total
-        self.update(int(done) - self.done)
-
-    def close(self) -> None:
-        """Stop the bar or the log lines (logging a last line if any was logged)."""
-        self._stop.set()
-        if self._bar is not None:
-            self._bar.close()
-        elif time.monotonic() - self._t0 >= self.interval:
-            log.info("%s (done)", self.line())
-
-    def __enter__(self) -> Progress:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _progress(total: int, enabled: bool, desc: str) -> Any:

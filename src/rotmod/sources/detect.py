@@ -27,7 +27,7 @@ import numpy as np
 
 from rotmod._validate import as_angle_scalar
 from rotmod.errors import ParameterError
-from rotmod.progress import Progress
+from rotmod.progress import ProgressArg
 from rotmod.response.operator import ResponseOperator
 from rotmod.sources.fit import FitResult, SourceFitter, fit_with
 from rotmod.sources.localise import Region, localise
@@ -89,7 +89,7 @@ def detect(
     localise_sources: bool = True,
     systematic: Any = 0.0,
     ul_confidence: float = 0.95,
-    progress: Progress = None,
+    progress: ProgressArg = None,
 ) -> Detection:
     """Find the sources in ``data``: the iterative TS-map search (module notes).
 

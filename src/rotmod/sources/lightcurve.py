@@ -24,7 +24,7 @@ from rotmod.binning import EnergyBand
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
 from rotmod.events.folding import fold
-from rotmod.progress import Progress, progress_callbacks
+from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.response.operator import ResponseOperator
 from rotmod.sources.fit import SourceFitter, fit_with, ul_threshold
 from rotmod.sources.model import SkyModel
@@ -88,7 +88,7 @@ def light_curve(
     *,
     energy_band: Any = None,
     ul_confidence: float = 0.95,
-    progress: Progress = None,
+    progress: ProgressArg = None,
 ) -> LightCurve:
     """Fit the fluxes of ``model``'s sources in each interval of ``time_edges``.
 

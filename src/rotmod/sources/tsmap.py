@@ -31,8 +31,9 @@ import numpy as np
 
 from rotmod.errors import ParameterError
 from rotmod.limits import check_memory, memory_budget
-from rotmod.progress import Progress, progress_callbacks
+from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.response.operator import ResponseOperator
+from rotmod.response.parallel import block_grid, iter_blocks
 from rotmod.sky.geometry import SkyGeometry
 from rotmod.sources.fit import SourceFitter, ul_threshold
 from rotmod.sources.model import SkyModel
@@ -309,11 +310,21 @@ def scan_test_source(fitter: SourceFitter, state: tuple[np.ndarray, ...], column
         :func:`null_state` of the null model.
     columns : ndarray, shape (n_det, n_time, k)
         Response columns of the test positions.
+    q_ul, q_sens : float
+        ``2 delta ln L`` of the upper limit and TS of the sensitivity (<= 0: skipped).
     """
-    m_rest, det, tb, b0 = state
-    ec = (fitter.exposure[:, :, None] * columns)[fitter.valid]
+    return _scan_block(columns, None, fitter.exposure, fitter.valid, fitter.y, *state,
+                       q_ul, q_sens)
+
+
+def _scan_block(columns: np.ndarray, _block: Any, exposure: np.ndarray, valid: np.ndarray,
+                y: np.ndarray, m_rest: np.ndarray, det: np.ndarray, tb: np.ndarray,
+                b0: np.ndarray, q_ul: float, q_sens: float) -> np.ndarray:
+    """The scan of one block of columns (the ``reduce`` of the block walk: on a Dask
+    worker, only the ``(k, 5)`` result travels back)."""
+    ec = (exposure[:, :, None] * columns)[valid]
     out = np.empty((columns.shape[2], 5))
-    _ts_pixels(np.ascontiguousarray(ec.T, dtype=np.float64), fitter.y, m_rest, det, tb,
+    _ts_pixels(np.ascontiguousarray(ec.T, dtype=np.float64), y, m_rest, det, tb,
                np.array(b0, dtype=float), float(q_ul), float(q_sens), out)
     return out
 
@@ -326,7 +337,10 @@ def ts_map(
     ul_confidence: float = 0.95,
     sensitivity_ts: float = 25.0,
     fitter: SourceFitter | None = None,
-    progress: Progress = None,
+    progress: ProgressArg = None,
+    block_pixels: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
 ) -> TSMap:
     """TS, flux, error, upper limit and sensitivity of a test source in every pixel.
 
@@ -345,7 +359,12 @@ def ts_map(
     fitter : SourceFitter, optional
         Reuse one built for the same response and data.
     progress : bool or callable, optional
-        Progress over the pixel blocks.
+        Progress over the pixels.
+    block_pixels : int, optional
+        Pixels per block (default: as many as fit the memory budget, at most 4096).
+    scheduler, client : optional
+        Scan the blocks of pixels on a Dask cluster (address or ``distributed.Client``),
+        as responses compute their blocks; default local (numba's threads).
 
     Returns
     -------
@@ -361,14 +380,26 @@ def ts_map(
     check_memory(per_pixel + 8.0 * 6 * n_sky, f"a TS map of {n_sky} pixels",
                  hint="use fewer pixels")
     width = int(max(1, min(n_sky, memory_budget() // 8 // per_pixel, 4096)))
+    if block_pixels is not None:
+        if isinstance(block_pixels, bool) or not isinstance(block_pixels, int | np.integer) \
+                or block_pixels < 1:
+            raise ParameterError(f"block_pixels must be an integer >= 1, got {block_pixels!r}")
+        width = min(int(block_pixels), n_sky)
+    blocks = block_grid((response.n_det, response.n_time, n_sky), (response.n_time, width))
     out = np.empty((n_sky, 5))
     update, close = progress_callbacks(progress, n_sky, "TS map", "pixel")
+    done = 0
     try:
-        for n0 in range(0, n_sky, width):
-            n1 = min(n0 + width, n_sky)
-            out[n0:n1] = scan_test_source(f, state, response.block(n=(n0, n1)), q_ul,
-                                          float(sensitivity_ts))
-            update(n1, n_sky)
+        # The one block walk of responses: blocks of pixels (all bins), locally in order or
+        # as tasks on a Dask cluster; each result lands at its own pixels, so the map is the
+        # same bit for bit either way.
+        for _, (_, (n0, n1)), res in iter_blocks(
+                response, blocks, f.exposure, f.valid, f.y, *state, q_ul,
+                float(sensitivity_ts), reduce=_scan_block, scheduler=scheduler,
+                client=client):
+            out[n0:n1] = res
+            done += n1 - n0
+            update(done, n_sky)
     finally:
         close()
     shape = response.grid.shape if response.grid is not None else (1, n_sky)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from rotmod.sources.likelihood import log_likelihood, maximise
+from rotmod.sources.likelihood import Groups, log_likelihood, maximise
 
 
 def _problem(rng, n_bins=300, n_par=6):
@@ -58,3 +58,25 @@ def test_log_likelihood_differences_keep_their_digits():
     exact = float(np.sum(y * np.log1p(1e-7) - y * 1e-7))
     assert log_likelihood(y, mu) - log_likelihood(y, y) == pytest.approx(exact, rel=1e-6)
     assert log_likelihood(np.array([1.0]), np.array([0.0])) == -np.inf
+
+
+def test_group_amplitudes_are_the_same_as_their_columns(rng):
+    # Background-like amplitudes given as groups (one per block of bins) or as explicit
+    # indicator columns: one likelihood, one maximum.
+    A, y, m0 = _problem(rng, n_bins=240, n_par=6)
+    index = np.repeat(np.arange(4), 60)
+    value = rng.random(240) + 0.5
+    cols = np.zeros((240, 4))
+    cols[np.arange(240), index] = value
+    dense = maximise(np.hstack([A, cols]), y, m0)
+    k = A.shape[1]
+    grouped = maximise(A, y, m0, groups=Groups(index, value, 4))
+    np.testing.assert_allclose(grouped.x, dense.x, rtol=1e-6, atol=1e-9)
+    assert grouped.loglike == pytest.approx(dense.loglike, abs=1e-8)
+    # The grouped information is the Schur complement: its inverse is the column block of
+    # the full covariance.
+    full_cov = np.linalg.inv((np.hstack([A, cols]) * (y / dense.mu**2)[:, None]).T
+                             @ np.hstack([A, cols]))
+    free = dense.x[:k] > 1e-9
+    np.testing.assert_allclose(grouped.covariance()[np.ix_(free, free)],
+                               full_cov[:k, :k][np.ix_(free, free)], rtol=1e-4)

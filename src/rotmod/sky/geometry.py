@@ -67,7 +67,9 @@ class SkyGeometry(ABC):
         Registry name (class attribute).
     frame : {"instrument", "celestial"}
         Where the pixels are fixed: in the instrument frame, or on the sky (placed in the
-        instrument frame by an attitude).
+        instrument frame by an attitude: geometries of the celestial frame hold it as
+        ``attitude``, which :func:`rotmod.response.columns.columns_at` uses to place
+        positions of one's choosing the same way).
     shape : (int, int)
         Image shape; flattened sky vectors use C order (``n = iy * nx + ix``).
     """

@@ -8,6 +8,7 @@
 * :func:`ts_map` -- TS, flux, upper limit and sensitivity of a test source in every pixel;
 * :func:`detect` -- the iterative search (TS map, add the peak, refit all) and
   :func:`localise` -- regions from the likelihood surface with a systematic term;
+* :func:`light_curve` -- every source's flux refitted per time interval.
 * :func:`light_curve` -- fluxes of known sources per time interval.
 
 See ``docs/sources.md``.
@@ -15,9 +16,10 @@ See ``docs/sources.md``.
 
 from rotmod.sources.detect import Detection, detect
 from rotmod.sources.fit import FitResult, SourceFitter, fit
+from rotmod.sources.lightcurve import LightCurve, light_curve
 from rotmod.sources.localise import Region, localise
 from rotmod.sources.model import PointSource, SkyModel
 from rotmod.sources.tsmap import TSMap, ts_map
 
-__all__ = ["Detection", "FitResult", "PointSource", "Region", "SkyModel", "SourceFitter",
-           "TSMap", "detect", "fit", "localise", "ts_map"]
+__all__ = ["Detection", "FitResult", "LightCurve", "PointSource", "Region", "SkyModel",
+           "SourceFitter", "TSMap", "detect", "fit", "light_curve", "localise", "ts_map"]

@@ -32,7 +32,7 @@ from scipy.stats import chi2 as chi2_dist
 from rotmod.errors import ParameterError
 from rotmod.reconstruction.data import PoissonData, as_data
 from rotmod.response.operator import ResponseOperator
-from rotmod.sources.likelihood import LinearPoissonFit, log_likelihood, maximise
+from rotmod.sources.likelihood import Groups, LinearPoissonFit, log_likelihood, maximise
 from rotmod.sources.model import PointSource, SkyModel, tangent_basis
 
 __all__ = ["FitResult", "SourceFitter", "fit", "fit_with"]
@@ -133,8 +133,10 @@ class SourceFitter:
         return model.background_template(n_det, n_t)
 
     def design(self, model: SkyModel) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                               np.ndarray]:
-        """``(A, x, free, m0)``: the columns, amplitudes, free flags and fixed counts.
+                                               np.ndarray, Groups | None]:
+        """``(A, x, free, m0, groups)``: the columns, amplitudes, free flags, fixed counts
+        and the background levels' groups (one per detector; ``None`` when the background
+        is known).
 
         Amplitudes in order: source fluxes, the diffuse scale (with a diffuse image), the
         background levels (when fitted).
@@ -152,18 +154,18 @@ class SourceFitter:
             x.append(model.diffuse_norm)
             free.append(model.free_diffuse)
         m0 = np.zeros(self.y.size) if self.m_fixed is None else self.m_fixed.copy()
+        groups = None
         if self.fit_background:
-            et = self.exposure * self.template(model)
+            et = (self.exposure * self.template(model))[self.valid]
             rows = np.broadcast_to(np.arange(n_det)[:, None], (n_det, n_t))[self.valid]
-            bcols = np.zeros((self.y.size, n_det))
-            bcols[np.arange(self.y.size), rows] = et[self.valid]
-            if np.any(bcols.sum(axis=0) <= 0):
+            groups = Groups(rows, et, n_det)
+            per_det = groups.sum(et)
+            if np.any(per_det <= 0):
                 raise ParameterError("background template times exposure must be > 0 on "
                                      "every detector")
-            cols.append(bcols)
             if model.background is None:
                 # Start: each detector's counts per unit of its template.
-                level = np.bincount(rows, self.y, n_det) / bcols.sum(axis=0)
+                level = groups.sum(self.y) / per_det
             else:
                 level = model.background
                 if level.shape != (n_det,):
@@ -172,7 +174,7 @@ class SourceFitter:
             x += list(np.maximum(level, 1e-12))
             free += [True] * n_det
         A = np.concatenate(cols, axis=1) if cols else np.zeros((self.y.size, 0))
-        return A, np.array(x, dtype=float), np.array(free, dtype=bool), m0
+        return A, np.array(x, dtype=float), np.array(free, dtype=bool), m0, groups
 
     def _with_amplitudes(self, model: SkyModel, x: np.ndarray) -> SkyModel:
         k = len(model.sources)
@@ -193,26 +195,33 @@ class SourceFitter:
 
         ``hold`` maps source indices to fluxes held fixed (a profile likelihood).
         """
-        A, x, free, m0 = self.design(model)
+        A, x, free, m0, groups = self.design(model)
         fixed = ~free
         for k, f in (hold or {}).items():
             x[k], fixed[k] = f, True
         # A start away from the bound lets every flux move (projected Newton holds
         # variables sitting at 0 with an outward gradient).
-        res = maximise(A, self.y, m0, np.where(fixed, x, np.maximum(x, 1e-12)), fixed=fixed)
+        res = maximise(A, self.y, m0, np.where(fixed, x, np.maximum(x, 1e-12)), fixed=fixed,
+                       groups=groups)
         return self._with_amplitudes(model, res.x), res
 
     def loglike(self, model: SkyModel) -> float:
         """``ln L`` of ``model`` as it is (nothing fitted)."""
-        A, x, _, m0 = self.design(model)
-        return log_likelihood(self.y, m0 + A @ x)
+        return log_likelihood(self.y, self._mu(model))
 
     def expected(self, model: SkyModel) -> np.ndarray:
         """Expected counts ``(n_det, n_time)`` of ``model`` (0 where no exposure)."""
-        A, x, _, m0 = self.design(model)
         out = np.zeros(self.data.shape)
-        out[self.valid] = m0 + A @ x
+        out[self.valid] = self._mu(model)
         return out
+
+    def _mu(self, model: SkyModel) -> np.ndarray:
+        A, x, _, m0, groups = self.design(model)
+        k = A.shape[1]
+        mu = m0 + A @ x[:k]
+        if groups is not None:
+            mu += x[k:][groups.index] * groups.value
+        return mu
 
     # -- positions ------------------------------------------------------------------------
 

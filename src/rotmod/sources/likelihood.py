@@ -11,21 +11,27 @@ mu_i`` (the Cash statistic is ``-2 l``) is concave in ``x``, so the maximum on t
 non-negative orthant is unique and a projected Newton method (Bertsekas 1982) finds it:
 variables at the bound whose gradient pushes outward are held there, the rest take the
 Newton step of the exact Hessian ``-A^T diag(y / mu^2) A``, and a backtracking line search
-keeps every step an ascent.  The boundary is part of the statistics: a flux fitted at 0
-makes a likelihood ratio whose null distribution is ``1/2 chi2_0 + 1/2 chi2_1`` (Chernoff
+keeps every step an ascent.  Amplitudes that each touch one group of bins only -- a
+detector's background level -- are given as ``groups`` (each bin's group and its column
+value) rather than as columns: their block of the Hessian is diagonal, so a Newton step
+eliminates them through the Schur complement of the other amplitudes in one pass over the
+bins, and no ``n_bins x n_detectors`` matrix is formed (nor a large BLAS product, whose
+threads stall on a loaded machine).  The boundary is part of the statistics: a flux fitted
+at 0 makes a likelihood ratio whose null distribution is ``1/2 chi2_0 + 1/2 chi2_1`` (Chernoff
 1954), which is what :mod:`rotmod.sources` quotes and ``benchmarks/sources_calibration.py``
 measures.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import sparse
 
 from rotmod.errors import ParameterError
 
-__all__ = ["LinearPoissonFit", "log_likelihood", "maximise"]
+__all__ = ["Groups", "LinearPoissonFit", "log_likelihood", "maximise"]
 
 #: Newton decrement (in units of ln L) below which a fit has converged; 1e-9 makes the TS
 #: (twice a difference of two maxima) exact to ~1e-8, far below its statistical spread of 1.
@@ -56,13 +62,14 @@ class LinearPoissonFit:
     Attributes
     ----------
     x : ndarray
-        Amplitudes at the maximum (>= 0).
+        Amplitudes at the maximum (>= 0): the columns' first, then the groups'.
     loglike : float
         ``ln L`` there (:func:`log_likelihood`: less the data's constant).
     mu : ndarray
         Expected counts there.
-    hessian : ndarray
-        ``A^T diag(y / mu^2) A``, the observed information of the amplitudes.
+    information : ndarray, shape (k, k)
+        Observed information of the column amplitudes with the group amplitudes profiled
+        out (the Schur complement): its inverse is their covariance.
     n_iter : int
         Newton steps taken.
     """
@@ -70,12 +77,49 @@ class LinearPoissonFit:
     x: np.ndarray
     loglike: float
     mu: np.ndarray
-    hessian: np.ndarray
+    information: np.ndarray
     n_iter: int
 
     def covariance(self) -> np.ndarray:
-        """Inverse of the information (pseudo-inverse where it is singular)."""
-        return np.linalg.pinv(self.hessian)
+        """Covariance of the column amplitudes (pseudo-inverse of :attr:`information`)."""
+        return np.linalg.pinv(self.information)
+
+
+@dataclass(frozen=True)
+class Groups:
+    """Amplitudes that each multiply one group of bins: ``mu_i += x_{g_i} t_i``.
+
+    Parameters
+    ----------
+    index : ndarray of int, shape (n_bins,)
+        Group of each bin (``0 <= g < size``).
+    value : ndarray, shape (n_bins,)
+        The group column's value in each bin (>= 0).
+    size : int
+        Number of groups.
+    """
+
+    index: np.ndarray
+    value: np.ndarray
+    size: int
+    indicator: sparse.csr_matrix = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        n = len(self.index)
+        # Sums over groups as one sparse product (no BLAS threads, no (n_bins, size) array).
+        object.__setattr__(self, "indicator", sparse.csr_matrix(
+            (np.ones(n), (np.asarray(self.index), np.arange(n))), shape=(self.size, n)))
+
+    def sum(self, v: np.ndarray) -> np.ndarray:
+        """Per-group sums of ``v`` (one value per bin, or ``(n_bins, k)``: ``(size, k)``)."""
+        return np.asarray(self.indicator @ v)
+
+
+def _state(A, groups, y, m0, x, k):
+    mu = m0 + A @ x[:k]
+    if groups is not None:
+        mu = mu + x[k:][groups.index] * groups.value
+    return mu
 
 
 def maximise(
@@ -85,48 +129,54 @@ def maximise(
     x0: np.ndarray | None = None,
     *,
     fixed: np.ndarray | None = None,
+    groups: Groups | None = None,
 ) -> LinearPoissonFit:
-    """Maximise the Poisson likelihood of ``mu = m0 + A x`` over ``x >= 0``.
+    """Maximise the Poisson likelihood of ``mu = m0 + A x + x_g[groups] t`` over ``x >= 0``.
 
     Parameters
     ----------
-    A : ndarray, shape (n_bins, n_par)
-        Non-negative columns of the amplitudes.
+    A : ndarray, shape (n_bins, k)
+        Non-negative columns of the first ``k`` amplitudes.
     y : ndarray, shape (n_bins,)
         Counts (>= 0).
     m0 : ndarray, shape (n_bins,), optional
         Fixed expected counts (default 0).
-    x0 : ndarray, shape (n_par,), optional
-        Start (default: every column scaled to share the counts).
-    fixed : ndarray of bool, shape (n_par,), optional
+    x0 : ndarray, shape (k + n_groups,), optional
+        Start (default: every amplitude scaled to share the counts).
+    fixed : ndarray of bool, shape (k + n_groups,), optional
         Amplitudes held at their start value (a profile likelihood).
+    groups : Groups, optional
+        Amplitudes of one group of bins each (after the ``k`` column amplitudes).
 
     Returns
     -------
     LinearPoissonFit
     """
-    A = np.asarray(A, dtype=float)
+    A = np.asarray(A, dtype=float).reshape(len(y), -1)
     y = np.asarray(y, dtype=float)
-    n_bins, n_par = A.shape
+    n_bins, k = A.shape
+    n_g = 0 if groups is None else groups.size
+    n_par = k + n_g
     m0 = np.zeros(n_bins) if m0 is None else np.asarray(m0, dtype=float)
     hold = np.zeros(n_par, bool) if fixed is None else np.asarray(fixed, bool)
-    col = A.sum(axis=0)
+    col = np.concatenate([A.sum(axis=0), groups.sum(groups.value) if n_g else []])
     if x0 is None:
         share = max(float(y.sum() - m0.sum()), 1e-3 * max(float(y.sum()), 1.0))
         x = np.where(col > 0, share / max(n_par, 1) / np.where(col > 0, col, 1.0), 0.0)
     else:
         x = np.array(x0, dtype=float)
-    if np.any(x < 0) or not np.all(np.isfinite(x)):
-        raise ParameterError("x0 must be finite and >= 0")
+    if x.shape != (n_par,) or np.any(x < 0) or not np.all(np.isfinite(x)):
+        raise ParameterError(f"x0 must be {n_par} finite values >= 0")
     # A column that touches no bin is not constrained by the data: its amplitude stays 0.
     dead = col <= 0
     x[dead & ~hold] = 0.0
-    mu = m0 + A @ x
+    mu = _state(A, groups, y, m0, x, k)
     ll = log_likelihood(y, mu)
     if not np.isfinite(ll):
         # Counts where the start predicts none: lift every free amplitude a little.
-        x[~hold & ~dead] += max(float(y.sum()), 1.0) / max(float(col[~hold & ~dead].sum()), 1e-300)
-        mu = m0 + A @ x
+        lift = ~hold & ~dead
+        x[lift] += max(float(y.sum()), 1.0) / max(float(col[lift].sum()), 1e-300)
+        mu = _state(A, groups, y, m0, x, k)
         ll = log_likelihood(y, mu)
         if not np.isfinite(ll):
             raise ParameterError("the model predicts no counts in bins that have counts, "
@@ -135,28 +185,34 @@ def maximise(
     while n_iter < MAX_ITER:
         n_iter += 1
         r = y / np.where(mu > 0, mu, np.inf)
-        g = A.T @ (r - 1.0)
-        H = (A * (r / np.where(mu > 0, mu, np.inf))[:, None]).T @ A
+        w = r / np.where(mu > 0, mu, np.inf)
+        g = np.concatenate([A.T @ (r - 1.0),
+                            groups.sum(groups.value * (r - 1.0)) if n_g else []])
         # Free: not held, not a dead column, and not at the bound being pushed outward.
         free = ~hold & ~dead & ~((x <= 0) & (g <= 0))
-        if not free.any():
-            break
-        Hf = H[np.ix_(free, free)]
-        # A tiny ridge keeps a column seen only by empty bins (H = 0) solvable.
-        ridge = 1e-12 * max(float(np.max(np.diag(Hf))), 1e-300)
-        try:
-            d = np.linalg.solve(Hf + ridge * np.eye(Hf.shape[0]), g[free])
-        except np.linalg.LinAlgError:
-            d = g[free] / np.maximum(np.diag(Hf), 1e-300)
-        decrement = float(g[free] @ d)
+        fd, fg = free[:k], free[k:]
+        S, Hdg, inv = _schur(A, groups, w, fg)
+        rhs = g[:k] - Hdg @ (inv * g[k:]) if n_g else g[:k]
+        d = np.zeros(n_par)
+        if fd.any():
+            Sf = S[np.ix_(fd, fd)]
+            # A tiny ridge keeps a column seen only by empty bins (H = 0) solvable.
+            ridge = 1e-12 * max(float(np.max(np.abs(np.diag(Sf)))), 1e-300)
+            try:
+                d[:k][fd] = np.linalg.solve(Sf + ridge * np.eye(Sf.shape[0]), rhs[fd])
+            except np.linalg.LinAlgError:
+                d[:k][fd] = rhs[fd] / np.maximum(np.diag(Sf), 1e-300)
+        if n_g:
+            d[k:] = inv * (g[k:] - Hdg.T @ d[:k])
+        decrement = float(g[free] @ d[free])
         # Converged: the remaining gain is below TOL or the rounding of ln L itself.
-        if decrement < TOL + 1e-13 * abs(ll):
+        if not free.any() or decrement < TOL + 1e-13 * abs(ll):
             break
         step = 1.0
         while True:
             xn = x.copy()
-            xn[free] = np.maximum(x[free] + step * d, 0.0)
-            mun = m0 + A @ xn
+            xn[free] = np.maximum(x[free] + step * d[free], 0.0)
+            mun = _state(A, groups, y, m0, xn, k)
             lln = log_likelihood(y, mun)
             # Armijo on the projected step; the projection can only shorten it.
             if lln >= ll + 1e-4 * float(g[free] @ (xn[free] - x[free])) or step < 1e-9:
@@ -168,6 +224,21 @@ def maximise(
         x, mu, ll = xn, mun, lln
         if gained < 0.1 * TOL and step < 1.0:
             break
-    r = y / np.where(mu > 0, mu, np.inf)
-    H = (A * (r / np.where(mu > 0, mu, np.inf))[:, None]).T @ A
-    return LinearPoissonFit(x, ll, mu, H, n_iter)
+    # The information where the fit ended (every group profiled out).
+    w = y / np.where(mu > 0, mu, np.inf) ** 2
+    info = _schur(A, groups, w, np.ones(n_g, bool))[0]
+    return LinearPoissonFit(x, ll, mu, info, n_iter)
+
+
+def _schur(A: np.ndarray, groups: Groups | None, w: np.ndarray, free_groups: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(S, H_dg, 1 / H_gg)``: the Hessian of the column amplitudes with the free groups
+    eliminated (Schur complement), the cross block and the inverse diagonal of the groups'
+    block (0 for held groups)."""
+    Hdd = (A * w[:, None]).T @ A
+    if groups is None:
+        return Hdd, np.zeros((A.shape[1], 0)), np.zeros(0)
+    Hdg = groups.sum(A * (groups.value * w)[:, None]).T       # (k, n_groups)
+    Hgg = groups.sum(groups.value**2 * w)                      # the diagonal block
+    inv = np.where(free_groups & (Hgg > 0), 1.0 / np.where(Hgg > 0, Hgg, 1.0), 0.0)
+    return Hdd - (Hdg * inv) @ Hdg.T, Hdg, inv

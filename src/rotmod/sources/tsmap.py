@@ -335,7 +335,7 @@ def ts_map(
     model: SkyModel | None = None,
     *,
     ul_confidence: float = 0.95,
-    sensitivity_ts: float = 25.0,
+    sensitivity_ts: float | None = 25.0,
     fitter: SourceFitter | None = None,
     progress: ProgressArg = None,
     block_pixels: int | None = None,
@@ -354,8 +354,9 @@ def ts_map(
         fitted first, then held fixed.  Default: background only.
     ul_confidence : float
         Confidence of the upper limits, in (0.5, 1).
-    sensitivity_ts : float
-        TS that defines the sensitivity (25: 5 sigma at a fixed position), > 0.
+    sensitivity_ts : float or None
+        TS that defines the sensitivity (25: 5 sigma at a fixed position), > 0; ``None``
+        skips the sensitivity (NaN), which costs more than the rest of the map.
     fitter : SourceFitter, optional
         Reuse one built for the same response and data.
     progress : bool or callable, optional
@@ -371,8 +372,9 @@ def ts_map(
     TSMap
     """
     q_ul = ul_threshold(ul_confidence)
-    if not (np.isfinite(sensitivity_ts) and sensitivity_ts > 0):
-        raise ParameterError(f"sensitivity_ts must be > 0, got {sensitivity_ts!r}")
+    if sensitivity_ts is not None and not (np.isfinite(sensitivity_ts) and sensitivity_ts > 0):
+        raise ParameterError(f"sensitivity_ts must be > 0 or None, got {sensitivity_ts!r}")
+    q_sens = 0.0 if sensitivity_ts is None else float(sensitivity_ts)
     f = SourceFitter(response, data) if fitter is None else fitter
     state = null_state(f, model)
     n_bins, n_sky = f.y.size, response.n_sky
@@ -394,8 +396,8 @@ def ts_map(
         # as tasks on a Dask cluster; each result lands at its own pixels, so the map is the
         # same bit for bit either way.
         for _, (_, (n0, n1)), res in iter_blocks(
-                response, blocks, f.exposure, f.valid, f.y, *state, q_ul,
-                float(sensitivity_ts), reduce=_scan_block, scheduler=scheduler,
+                response, blocks, f.exposure, f.valid, f.y, *state, q_ul, q_sens,
+                reduce=_scan_block, scheduler=scheduler,
                 client=client):
             out[n0:n1] = res
             done += n1 - n0
@@ -404,4 +406,4 @@ def ts_map(
         close()
     shape = response.grid.shape if response.grid is not None else (1, n_sky)
     maps = [out[:, j].reshape(shape) for j in range(5)]
-    return TSMap(response.grid, *maps, ul_confidence, float(sensitivity_ts))
+    return TSMap(response.grid, *maps, ul_confidence, q_sens)

@@ -142,6 +142,8 @@ def test_lightcurve_one_row_per_interval(detected) -> None:
      "--regions: DS9 regions and HEALPix maps are on the sky"),
     (["detect", "{f}/ev.fits", *GRID, "-o", "{f}/x.fits", "--threshold", "0"],
      "--threshold: must be a TS > 0"),
+    (["detect", "{f}/ev.fits", *GRID, "-o", "{f}/x.fits", "--systematic", "-1"],
+     "--systematic: must be >= 0 deg"),
     (["detect", "{f}/ev.fits", "--grid", "celestial", "-o", "{f}/x.fits"],
      "--energy: give the photon energy"),
     (["detect", "{f}/folded.fits", *GRID, "-o", "{f}/x.fits"],

@@ -129,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
              if (path := getattr(args, opt)) is not None}
     if not (np.isfinite(args.threshold) and args.threshold > 0):
         raise UserError(f"--threshold: must be a TS > 0, got {args.threshold:g}")
+    if not args.systematic >= 0:
+        raise UserError(f"--systematic: must be >= 0 deg, got {args.systematic:g}")
     if not 0.5 < args.ul_confidence < 1:
         raise UserError(f"--ul-confidence: must be in (0.5, 1), got {args.ul_confidence:g}")
     if args.refit_positions and args.catalogue_in is None:

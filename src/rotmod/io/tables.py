@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import astropy.units as u
 import numpy as np
@@ -25,6 +25,9 @@ from rotmod.io.atomic import atomic_path, check_overwrite
 from rotmod.io.images import add_meta_cards
 from rotmod.io.provenance import fitting_comment, provenance_cards
 from rotmod.sky.attitude import AttitudeTable
+
+if TYPE_CHECKING:
+    from rotmod.sources.lightcurve import LightCurve
 
 __all__ = ["read_attitude_table", "write_attitude_table", "write_light_curve",
            "write_product_table", "write_table"]
@@ -131,7 +134,7 @@ def write_table(table: Table, path: str | os.PathLike, *, format: str | None = N
 
 
 def write_light_curve(
-    light_curve: Any, path: str | os.PathLike, *, overwrite: bool = False, seed: Any = None,
+    light_curve: LightCurve, path: str | os.PathLike, *, overwrite: bool = False, seed: Any = None,
     command: str | Sequence[str] | None = None, meta: dict[str, Any] | None = None,
 ) -> Path:
     """Write a light curve (:class:`rotmod.sources.LightCurve`) as FITS or ECSV: its

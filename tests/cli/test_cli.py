@@ -15,7 +15,8 @@ def run(capsys, *argv: str) -> tuple[int, str, str]:
 
 
 @pytest.mark.parametrize(
-    "cmd", ["", "profile", "simulate", "fold", "response", "reconstruct", "design", "reproduce"]
+    "cmd", ["", "profile", "simulate", "fold", "response", "reconstruct", "detect", "lightcurve",
+            "design", "reproduce"]
 )
 def test_help(capsys, cmd: str) -> None:
     code, out, _ = run(capsys, *([cmd] if cmd else []), "--help")
@@ -39,7 +40,7 @@ def test_help_lists_the_registries() -> None:
     from rotmod.reconstruction import ALGORITHMS
     from rotmod.reconstruction.api import DEFAULT_METHOD
 
-    for command in ("profile", "response"):
+    for command in ("profile", "response", "detect", "lightcurve"):
         assert ", ".join(MODELS.names()) in _option_help(command, "--model")
     assert ", ".join(ALGORITHMS.names()) in _option_help("reconstruct", "--method")
     assert f"default {DEFAULT_METHOD}" in _option_help("reconstruct", "--method")

@@ -15,7 +15,8 @@ pytestmark = pytest.mark.skipif(FITSVERIFY is None,
                                 reason="fitsverify not installed (apt-get install fitsverify)")
 
 KINDS = ("events", "pointed events", "folded", "instrument image", "celestial image",
-         "healpix image")
+         "healpix image", "catalogue", "instrument catalogue", "instrument TS map",
+         "celestial TS map", "healpix TS map", "probability map", "light curve")
 
 
 def _verify(path) -> tuple[int, int, str]:

@@ -17,7 +17,10 @@ from tests.io.conftest import COMMAND, SEED
 
 #: The HDU of each product kind whose header carries the data's description.
 MAIN_HDU = {"events": "EVENTS", "pointed events": "EVENTS", "folded": "PROFILES",
-            "instrument image": 0, "celestial image": 0, "healpix image": 0}
+            "instrument image": 0, "celestial image": 0, "healpix image": 0,
+            "catalogue": "CATALOG", "instrument catalogue": "CATALOG",
+            "instrument TS map": 0, "celestial TS map": 0, "healpix TS map": 0,
+            "probability map": "PROBMAP", "light curve": "LIGHTCURVE"}
 
 
 @pytest.mark.parametrize("kind", sorted(MAIN_HDU))

@@ -7,6 +7,8 @@
     rotmod fold        event list -> folded profiles (FITS)
     rotmod response    build and store a response (zarr), on Dask when given a scheduler
     rotmod reconstruct folded profiles + response -> FITS image + plot
+    rotmod detect      the sources in the data -> catalogue, TS map, regions
+    rotmod lightcurve  fluxes of catalogued sources per time interval -> table + plot
     rotmod design      mask design trade-off (Pareto front)
     rotmod reproduce   regenerate the seed paper's results with an HTML report
 
@@ -49,6 +51,9 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "fold": ("_fold", "event list -> folded profiles (FITS)"),
     "response": ("_response", "build and store a response (zarr); on Dask with --scheduler"),
     "reconstruct": ("_reconstruct", "folded profiles + response -> FITS image + plot"),
+    "detect": ("_detect", "find the sources in the data -> catalogue, TS map, regions"),
+    "lightcurve": ("_lightcurve",
+                   "fluxes of catalogued sources per time interval -> table + plot"),
     "design": ("_design", "mask design trade-off (Pareto front)"),
     "reproduce": ("_reproduce", "regenerate the seed paper's results with an HTML report"),
 }

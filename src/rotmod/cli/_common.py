@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import astropy.units as u
 import numpy as np
 
+from rotmod.binning import EnergyBand
 from rotmod.errors import RotmodError
 from rotmod.io import figures as io_figures
 from rotmod.io import tables as io_tables
@@ -186,6 +187,27 @@ def add_energy(p: argparse.ArgumentParser) -> None:
     p.add_argument("-e", "--energy", type=quantity("keV"), default=None, metavar="KEV",
                    help="photon energy (keV, or with a unit: 1.2MeV); "
                    "default the instrument file's first energy")
+
+
+def add_band(p: argparse.ArgumentParser) -> None:
+    """``--band LO:HI``: the events' energy band (:func:`band_of`)."""
+    p.add_argument("--band", default=None, metavar="LO:HI",
+                   help="keep events with LO <= energy <= HI (keV; each may carry a unit: "
+                   "100:0.14MeV)")
+
+
+def band_of(text: str | None) -> EnergyBand | None:
+    """The ``--band LO:HI`` (keV; each may carry a unit), or None."""
+    if text is None:
+        return None
+    lo, sep, hi = text.partition(":")  # each a plain number (keV) or with a unit
+    try:
+        band = EnergyBand(to_number(lo, "keV"), to_number(hi, "keV")) if sep else None
+    except argparse.ArgumentTypeError as exc:
+        raise UserError(f"--band: must be LO:HI (keV), got {text!r}: {exc}") from None
+    if band is None:
+        raise UserError(f"--band: must be LO:HI (keV), got {text!r}")
+    return band
 
 
 def add_progress(p: argparse.ArgumentParser) -> None:

@@ -5,19 +5,20 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from rotmod.binning import EnergyBand, TimeBinning
+from rotmod.binning import TimeBinning
 from rotmod.cli._common import (
     BINS_HELP,
     DEFAULT_BINS,
     UserError,
+    add_band,
     add_output,
+    band_of,
     check_input,
     check_output,
     check_plot,
     count,
     save_figure,
     say,
-    to_number,
     use_agg,
 )
 from rotmod.events import fold
@@ -36,9 +37,7 @@ def register(sub: Any) -> None:
     p.add_argument("events", metavar="EVENTS", help="event list (FITS, from rotmod simulate)")
     p.add_argument("-n", "--bins", type=count(1), default=DEFAULT_BINS, metavar="N",
                    help=BINS_HELP)
-    p.add_argument("--band", default=None, metavar="LO:HI",
-                   help="keep events with LO <= energy <= HI (keV; each may carry a unit: "
-                   "100:0.14MeV)")
+    add_band(p)
     add_output(p, help="folded profiles (FITS)")
     p.add_argument("--plot", default=None, metavar="PNG", help="also plot the count rates")
     p.set_defaults(func=run)
@@ -52,15 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.bins < 1:
         raise UserError(f"--bins: must be >= 1, got {args.bins}")
     events = read_events(src)
-    band = None
-    if args.band is not None:
-        lo, sep, hi = args.band.partition(":")  # each a plain number (keV) or with a unit
-        try:
-            band = EnergyBand(to_number(lo, "keV"), to_number(hi, "keV")) if sep else None
-        except argparse.ArgumentTypeError as exc:
-            raise UserError(f"--band: must be LO:HI (keV), got {args.band!r}: {exc}") from None
-        if band is None:
-            raise UserError(f"--band: must be LO:HI (keV), got {args.band!r}")
+    band = band_of(args.band)
     folded = fold(events, TimeBinning(args.bins), band)
     write_folded(folded, out, overwrite=args.overwrite, command=args.command_line)
     say(f"rotmod: wrote {out} ({folded.counts.shape[0]} detector(s) x {folded.n_bins} bins, "

@@ -75,6 +75,27 @@ def register(sub: Any) -> None:
                    f"{DEFAULT_MODEL}; radon is always exact)")
     p.add_argument("--tolerance", type=float, default=1e-4, metavar="DP",
                    help="radon: largest error of any profile value (default 1e-4)")
+    add_grid_options(p)
+    add_attitude(p)
+    p.add_argument("-t", "--exposure", type=quantity("s"), default=None, metavar="SECONDS",
+                   help="with --attitude: the observation runs over [0, SECONDS] (give rotmod "
+                   "simulate's; default the table's last time)")
+    p.add_argument("-n", "--bins", type=count(1), default=DEFAULT_BINS, metavar="N",
+                   help=BINS_HELP)
+    p.add_argument("--bin-mode", choices=("center", "average"), default="center",
+                   help="response of a bin: value at its centre or its mean (default center)")
+    p.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+                   help="storage type (default float32)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler address (e.g. tcp://host:8786); default local threads")
+    add_progress(p)
+    add_output(p, help="response store (a .zarr directory)")
+    p.set_defaults(func=run)
+
+
+def add_grid_options(p: argparse.ArgumentParser) -> None:
+    """The sky grid's options (``--grid``, ``--fov``, ``--pixel``, ...; :func:`make_grid`),
+    shared with the commands that build a response on the fly (``rotmod detect``)."""
     p.add_argument("--grid", choices=("instrument", "celestial", "healpix"),
                    default="instrument",
                    help="sky grid: a square field in the instrument frame (default), a TAN "
@@ -98,21 +119,6 @@ def register(sub: Any) -> None:
                    help="healpix: resolution, a power of 2 (pixels ~58.6/N deg; default 64)")
     p.add_argument("--radius", type=quantity("deg"), default=7.0, metavar="DEG",
                    help="healpix: radius of the cone of pixels (deg; default 7)")
-    add_attitude(p)
-    p.add_argument("-t", "--exposure", type=quantity("s"), default=None, metavar="SECONDS",
-                   help="with --attitude: the observation runs over [0, SECONDS] (give rotmod "
-                   "simulate's; default the table's last time)")
-    p.add_argument("-n", "--bins", type=count(1), default=DEFAULT_BINS, metavar="N",
-                   help=BINS_HELP)
-    p.add_argument("--bin-mode", choices=("center", "average"), default="center",
-                   help="response of a bin: value at its centre or its mean (default center)")
-    p.add_argument("--dtype", choices=("float32", "float64"), default="float32",
-                   help="storage type (default float32)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="Dask scheduler address (e.g. tcp://host:8786); default local threads")
-    add_progress(p)
-    add_output(p, help="response store (a .zarr directory)")
-    p.set_defaults(func=run)
 
 
 def parse_pair(text: str, option: str = "--center", names: str = "X,Y") -> tuple[float, float]:

@@ -8,6 +8,9 @@ Each format is registered once, for the class it holds (:mod:`rotmod.io.registry
     rotmod.io.write(config, "inst.toml")          # instrument file, TOML (rotmod.io.config)
     rotmod.io.write(attitude_table, "asp.ecsv")   # attitude table, ECSV (rotmod.io.tables)
     rotmod.io.write(result, "image.fits", grid=grid)  # reconstruction, FITS (rotmod.io.images)
+    rotmod.io.write(detection, "cat.fits")        # source catalogue, FITS or ECSV (io.catalogue)
+    rotmod.io.write(detection.ts_map, "ts.fits")  # TS map, FITS (rotmod.io.tsmaps)
+    rotmod.io.write(light_curve, "lc.ecsv")       # light curve, FITS or ECSV (rotmod.io.tables)
     obj = rotmod.io.read("obs.fits")              # whatever the file holds
 
 The functions registered are the one implementation of each format; the older entry points
@@ -25,9 +28,11 @@ from pathlib import Path
 from typing import Any
 
 from astropy.io import fits
+from astropy.table import Table
 
 from rotmod.config import InstrumentConfig
 from rotmod.events import EventList, FoldedProfiles
+from rotmod.io.catalogue import SourceCatalogue, read_catalogue, write_catalogue, write_detection
 from rotmod.io.config import (
     list_presets,
     load_instrument,
@@ -37,8 +42,10 @@ from rotmod.io.config import (
 )
 from rotmod.io.events import read_events, read_folded, write_events, write_folded
 from rotmod.io.images import FitsImage, read_image, write_image
+from rotmod.io.regions import HealpixProbability, read_probability_map, write_probability_map
 from rotmod.io.registry import FileFormat, formats, read, register, write
-from rotmod.io.tables import read_attitude_table, write_attitude_table
+from rotmod.io.tables import read_attitude_table, write_attitude_table, write_light_curve
+from rotmod.io.tsmaps import TSMapFile, read_ts_map, write_ts_map
 from rotmod.sky.attitude import AttitudeTable
 
 __all__ = [
@@ -70,6 +77,18 @@ def _fits_identify(hdu: str) -> Callable[[Path], bool]:
     return identify
 
 
+def _ecsv_identify(rule: Callable[[Table], bool]) -> Callable[[Path], bool]:
+    """``identify(path)``: whether an ECSV file's table passes ``rule``."""
+
+    def identify(path: Path) -> bool:
+        try:
+            return rule(Table.read(path, format="ascii.ecsv"))
+        except (OSError, ValueError):
+            return False
+
+    return identify
+
+
 def _is_image(path: Path) -> bool:
     try:
         return fits.getheader(path, 0).get("NAXIS") == 2
@@ -92,10 +111,28 @@ register(InstrumentConfig, "toml", reader=read_instrument_config,
 register(InstrumentConfig, "yaml", reader=read_instrument_config,
          extensions=(".yaml", ".yml"))
 register(AttitudeTable, "ecsv", reader=read_attitude_table,
-         writer=write_attitude_table, extensions=(".ecsv",))
+         writer=write_attitude_table, extensions=(".ecsv",),
+         identify=_ecsv_identify(lambda t: {"time", "ra", "dec", "roll"} <= set(t.colnames)))
 # By its import path: importing the reconstruction package here would make every reader of
 # files load it.
 register("rotmod.reconstruction.base.ReconstructionResult", "fits", writer=_write_result,
          extensions=(".fits", ".fits.gz"))
 register(FitsImage, "fits", reader=read_image, extensions=(".fits", ".fits.gz"),
          identify=_is_image)
+# Source products, by the import paths of the sources package's classes (as above).
+for _cls, _writer in (("rotmod.sources.detect.Detection", write_detection),
+                      ("rotmod.sources.fit.FitResult", write_catalogue),
+                      ("rotmod.sources.lightcurve.LightCurve", write_light_curve)):
+    register(_cls, "fits", writer=_writer, extensions=(".fits", ".fits.gz"))
+    register(_cls, "ecsv", writer=_writer, extensions=(".ecsv",))
+register(SourceCatalogue, "fits", reader=read_catalogue, extensions=(".fits", ".fits.gz"),
+         identify=_fits_identify("CATALOG"))
+register(SourceCatalogue, "ecsv", reader=read_catalogue, extensions=(".ecsv",),
+         identify=_ecsv_identify(lambda t: t.meta.get("EXTNAME") == "CATALOG"))
+register("rotmod.sources.tsmap.TSMap", "fits", writer=write_ts_map,
+         extensions=(".fits", ".fits.gz"))
+register(TSMapFile, "fits", reader=read_ts_map, extensions=(".fits", ".fits.gz"),
+         identify=_fits_identify("SENSITIVITY"))
+register(HealpixProbability, "fits", reader=read_probability_map,
+         writer=write_probability_map, extensions=(".fits", ".fits.gz"),
+         identify=_fits_identify("PROBMAP"))

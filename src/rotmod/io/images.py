@@ -22,7 +22,7 @@ from rotmod.io.atomic import atomic_path, check_overwrite
 from rotmod.io.provenance import fitting_comment, provenance_cards
 from rotmod.sky.geometry import SkyGeometry, image_from_hdus
 
-__all__ = ["FitsImage", "read_image", "write_image"]
+__all__ = ["FitsImage", "add_meta_cards", "read_image", "write_image"]
 
 
 #: Comments (OGIP ``[unit]`` first) of the standard cards a caller passes in ``meta``.
@@ -50,6 +50,16 @@ def _card_value(v: Any) -> Any:
     if isinstance(v, np.generic):
         return _card_value(v.item())
     return json.dumps(v, default=str)
+
+
+def add_meta_cards(hdr: Any, meta: dict[str, Any] | None) -> None:
+    """Add a caller's ``meta`` to a FITS header: short names as standard cards (``EXPOSURE``,
+    ``E_MIN``, ``TELESCOP``, ``OBS_ID``, ... with their unit in the comment), long ones as
+    HIERARCH cards; every product writer of rotmod names its extra cards this way."""
+    for k, v in (meta or {}).items():
+        key = k.upper() if re.fullmatch(r"[A-Za-z0-9_-]{1,8}", k) else f"HIERARCH {k}"
+        value = _card_value(v)
+        hdr[key] = (value, fitting_comment(key, value, _META_COMMENTS.get(key, "")))
 
 
 @dataclass
@@ -168,11 +178,7 @@ def write_image(
         for k, v in sorted(result.params.items()):
             hdr[f"HIERARCH RECPAR {k.upper()}"] = _card_value(v)
         hdr["RECPARAM"] = json.dumps(result.params, default=str)  # whole, via CONTINUE
-    for k, v in (meta or {}).items():
-        # Short names are standard cards (EXPOSURE, E_MIN, E_MAX, TELESCOP, OBS_ID...).
-        key = k.upper() if re.fullmatch(r"[A-Za-z0-9_-]{1,8}", k) else f"HIERARCH {k}"
-        value = _card_value(v)
-        hdr[key] = (value, fitting_comment(key, value, _META_COMMENTS.get(key, "")))
+    add_meta_cards(hdr, meta)
     if result is not None and result.history:
         t = Table({k: np.asarray(v, dtype=float) for k, v in result.history.items()})
         th = fits.table_to_hdu(t)

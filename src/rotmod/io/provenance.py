@@ -140,5 +140,6 @@ def fitting_comment(key: str, value: Any, comment: str) -> str:
     astropy would cut it with a warning."""
     if not isinstance(value, str) or len(value) > 68:  # numbers fit; long text: CONTINUE
         return comment
-    width = 10 + max(len(value.replace("'", "''")) + 2, 10)  # "KEY     = " and 'value'
+    # "KEY     = " and the quoted value, which astropy pads to 20 characters.
+    width = 10 + max(len(value.replace("'", "''")) + 2, 20)
     return comment if width + 3 + len(comment) <= 80 else ""

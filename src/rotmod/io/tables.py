@@ -1,28 +1,119 @@
-"""Astropy tables as files (ECSV, CSV), and the attitude tables written as them.
+"""Astropy tables as files (ECSV, CSV, FITS), and the attitude tables written as them.
 
 Every table rotmod writes goes through :func:`write_table`: the one overwrite policy, then an
-atomic write.  An attitude table (:class:`~rotmod.sky.AttitudeTable`) is an ECSV file with
-columns ``time`` (s), ``ra``, ``dec`` and ``roll`` (deg).
+atomic write.  A table that is a product (a source catalogue, a light curve) goes through
+:func:`write_product_table`, which adds the provenance cards (:mod:`rotmod.io.provenance`)
+and writes FITS (``.fits``) or ECSV (``.ecsv``).  An attitude table
+(:class:`~rotmod.sky.AttitudeTable`) is an ECSV file with columns ``time`` (s), ``ra``,
+``dec`` and ``roll`` (deg).
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import astropy.units as u
 import numpy as np
+from astropy.io import fits
 from astropy.table import Table
 
 from rotmod.errors import ParameterError
 from rotmod.io.atomic import atomic_path, check_overwrite
+from rotmod.io.images import add_meta_cards
+from rotmod.io.provenance import fitting_comment, provenance_cards
 from rotmod.sky.attitude import AttitudeTable
 
-__all__ = ["read_attitude_table", "write_attitude_table", "write_table"]
+if TYPE_CHECKING:
+    from rotmod.sources.lightcurve import LightCurve
+
+__all__ = ["read_attitude_table", "write_attitude_table", "write_light_curve",
+           "write_product_table", "write_table"]
 
 #: astropy's format of each table extension rotmod writes (anything else: CSV).
 TABLE_FORMATS = {".ecsv": "ascii.ecsv", ".csv": "ascii.csv"}
+#: The file-name endings of a product table (:func:`write_product_table`) and their form.
+PRODUCT_FORMATS = {".fits": "fits", ".fits.gz": "fits", ".ecsv": "ecsv"}
+
+
+def product_format(path: str | os.PathLike, parameter: str = "path") -> str:
+    """``"fits"`` or ``"ecsv"``: the form of a product table named ``path``.
+
+    Raises
+    ------
+    ParameterError
+        Another extension.
+    """
+    name = Path(path).name.lower()
+    for ext, form in PRODUCT_FORMATS.items():
+        if name.endswith(ext):
+            return form
+    raise ParameterError(f"{parameter} {str(path)!r}: must end with "
+                         f"{', '.join(PRODUCT_FORMATS)} (FITS or ECSV), got "
+                         f"{Path(path).suffix or 'no extension'!r}")
+
+
+def write_product_table(
+    table: Table, path: str | os.PathLike, *, extname: str, overwrite: bool = False,
+    seed: Any = None, command: str | Sequence[str] | None = None,
+    meta: dict[str, Any] | None = None, comments: dict[str, str] | None = None,
+) -> Path:
+    """Write a product table with its provenance: FITS (``.fits``) or ECSV (``.ecsv``).
+
+    Parameters
+    ----------
+    table : astropy.table.Table
+        Columns with their units; ``table.meta`` holds header keywords (FITS keyword names).
+    path : str or path-like
+    extname : str
+        ``EXTNAME`` of the FITS table (also kept in the ECSV metadata, so that a reader
+        knows what the file holds).
+    overwrite : bool
+        Replace an existing file (default: refuse).
+    seed, command
+        Provenance (:func:`rotmod.io.provenance.provenance_cards`).
+    meta : dict, optional
+        Extra header cards (as :func:`rotmod.io.images.write_image`'s).
+    comments : dict, optional
+        Comments of the FITS cards of ``table.meta`` (keyword -> comment).
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    ParameterError
+        An extension other than FITS or ECSV, or an existing file without ``overwrite``.
+    """
+    form = product_format(path)
+    p = check_overwrite(path, overwrite)
+    cards = provenance_cards(seed=seed, command=command)
+    out = table.copy(copy_data=False)
+    out.meta = dict(table.meta)
+    if form == "ecsv":
+        out.meta["EXTNAME"] = extname
+        out.meta.update({k: v for k, v, _ in cards})
+        out.meta.update({k.upper(): v for k, v in (meta or {}).items()})
+        with atomic_path(p) as tmp:
+            out.write(tmp, format="ascii.ecsv", overwrite=True)
+        return p
+    hdu = fits.table_to_hdu(out)
+    hdu.name = extname
+    for key, comment in (comments or {}).items():
+        if key in hdu.header:
+            hdu.header.comments[key] = fitting_comment(key, hdu.header[key], comment)
+    primary = fits.PrimaryHDU()
+    for h in (primary.header, hdu.header):  # the primary too: where tools look first
+        h["ORIGIN"] = ("rotmod", "organisation or software that made the file")
+        for key, value, comment in cards:
+            h[key] = (value, comment)
+        add_meta_cards(h, meta)
+    with atomic_path(p) as tmp:
+        fits.HDUList([primary, hdu]).writeto(tmp, overwrite=True, checksum=True)
+    return p
 
 
 def write_table(table: Table, path: str | os.PathLike, *, format: str | None = None,
@@ -40,6 +131,28 @@ def write_table(table: Table, path: str | os.PathLike, *, format: str | None = N
     with atomic_path(p) as tmp:
         table.write(tmp, format=fmt, overwrite=True)
     return p
+
+
+def write_light_curve(
+    light_curve: LightCurve, path: str | os.PathLike, *, overwrite: bool = False, seed: Any = None,
+    command: str | Sequence[str] | None = None, meta: dict[str, Any] | None = None,
+) -> Path:
+    """Write a light curve (:class:`rotmod.sources.LightCurve`) as FITS or ECSV: its
+    :meth:`~rotmod.sources.LightCurve.to_table` (one row per interval, one entry per source in
+    each flux column) with the provenance cards (:func:`write_product_table`, extension
+    ``LIGHTCURVE``).
+
+    Raises
+    ------
+    ParameterError
+        Another extension than FITS or ECSV, or an existing file without ``overwrite``.
+    """
+    product_format(path)
+    return write_product_table(
+        light_curve.to_table(), path, extname="LIGHTCURVE", overwrite=overwrite, seed=seed,
+        command=command, meta=meta,
+        comments={"SOURCES": "the sources of the flux columns, in order",
+                  "UL_CONF": "confidence of the flux upper limits"})
 
 
 def write_attitude_table(table: AttitudeTable, path: str | os.PathLike, *,

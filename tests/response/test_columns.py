@@ -85,3 +85,23 @@ def test_positions_of_the_wrong_frame_are_refused(inst):
                          energy=300)
     with pytest.raises(ParameterError, match="SkyCoord"):
         columns_at(sky, ([1.0], [2.0]))
+
+
+def test_a_drift_matrix_remembers_its_intervals_also_when_stored(inst, tmp_path):
+    grid = CelestialGrid((4, 4), 2.0, 10.0, 5.0, Attitude(10.0, 5.0))
+    intervals = [(0.0, 37.0, Attitude(10.0, 5.0, roll=0.0)),
+                 (37.0, 90.0, Attitude(10.5, 5.2, roll=20.0))]
+    held = drift_response(inst, grid, 24, intervals, energy=300, dtype=np.float64)
+    pick = [2, 13]
+    sky = grid.sky_coords()[pick]
+    # At the pixels, the columns are the summed matrix's (not the nominal attitude's).
+    np.testing.assert_allclose(columns_at(held, sky), held.matrix[:, :, pick], rtol=1e-9,
+                               atol=1e-12)
+    from rotmod.response import open_response, save_response
+    save_response(tmp_path / "drift.zarr", held)
+    stored = open_response(tmp_path / "drift.zarr")  # read back from its metadata
+    assert len(stored.components()) == 2
+    np.testing.assert_allclose(columns_at(stored, sky), held.matrix[:, :, pick], rtol=1e-9,
+                               atol=1e-12)
+    np.testing.assert_allclose(columns_at(stored.materialise(), sky),
+                               held.matrix[:, :, pick], rtol=1e-9, atol=1e-12)

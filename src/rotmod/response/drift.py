@@ -163,4 +163,9 @@ def drift_response(
         acc += w[None, :, None] * part.matrix
     with np.errstate(invalid="ignore", divide="ignore"):
         matrix = np.where(total[None, :, None] > 0, acc / total[None, :, None], 0.0)
-    return MaterialisedResponse(matrix.astype(spec.dtype), spec=spec)
+        norm = np.where(total > 0, weights / total, 0.0)
+    # The matrix remembers its intervals: a source between pixels is evaluated at each
+    # interval's attitude, as the matrix was (columns_at).
+    return MaterialisedResponse(matrix.astype(spec.dtype), spec=spec,
+                                sum_of=[(w, at(att)) for w, (_, _, att)
+                                        in zip(norm, intervals, strict=True)])

@@ -65,6 +65,10 @@ class ResponseOperator(ABC):
     #: How :func:`~rotmod.response.save_response` stores this operator: a name in
     #: :data:`rotmod.response.stored.STORE_KINDS` ("dense": the values ``P``, in chunks).
     store_kind: ClassVar[str] = "dense"
+    #: What a response held as one matrix is the sum of (``(weights, spec)`` pairs, e.g. a
+    #: drift response's attitude intervals), kept so that it can be re-evaluated at other
+    #: positions (:meth:`components`); ``None``: the response of :attr:`spec` itself.
+    sum_of: list[tuple[np.ndarray | None, ResponseSpec]] | None = None
 
     def _adopt(self, spec: ResponseSpec) -> None:
         """Take the shape, dtype and metadata attributes from ``spec``."""
@@ -92,6 +96,8 @@ class ResponseOperator(ABC):
             raise ParameterError(
                 "response has no spec (instrument, grid, model, energy), so it cannot be "
                 "evaluated at other sky positions; build it with rotmod.response")
+        if self.sum_of is not None:
+            return list(self.sum_of)
         return [(None, self.spec)]
 
     @property
@@ -222,7 +228,7 @@ class ResponseOperator(ABC):
             out[:, t0:t1, n0:n1] = p
         repeat_half_turn(out, self.n_distinct)
         if self.spec is not None:
-            return MaterialisedResponse(out, spec=self.spec)
+            return MaterialisedResponse(out, spec=self.spec, sum_of=self.sum_of)
         return MaterialisedResponse(
             out, instrument=self.instrument, grid=self.grid, time_bins=self.time_bins,
             model=self.model, energy=self.energy, distance=self.distance,
@@ -265,6 +271,10 @@ class ResponseOperator(ABC):
             "rotmod_version": rotmod.__version__,
             # Only when finite, so that responses at infinity describe themselves as before.
             **({} if distance is None else {"distance": distance}),
+            # Only for a sum (a drift): each part's weights and grid (its attitude).
+            **({} if self.sum_of is None else {"sum_of": [
+                {"weights": None if w is None else np.asarray(w, float).tolist(),
+                 "grid": spec.grid.to_dict()} for w, spec in self.sum_of]}),
         }
 
 
@@ -286,6 +296,9 @@ class MaterialisedResponse(ResponseOperator):
         by the spec's own validator (:func:`~rotmod.response.spec.check_field`) and
         against the matrix's sizes.  ``model`` may be a registry name or instance;
         ``distance`` (cm) of a lab field's sources.
+    sum_of : list of (weights, ResponseSpec), optional
+        With ``spec``: what the matrix is the sum of (a drift response's intervals; see
+        :attr:`ResponseOperator.sum_of`).
 
     Raises
     ------
@@ -310,6 +323,7 @@ class MaterialisedResponse(ResponseOperator):
         model: str | ProfileModel | None = None,
         energy: float | None = None,
         distance: float | None = None,
+        sum_of: list[tuple[np.ndarray | None, ResponseSpec]] | None = None,
     ) -> None:
         m = np.asarray(matrix)
         if m.ndim != 3:
@@ -326,6 +340,7 @@ class MaterialisedResponse(ResponseOperator):
                 raise ParameterError(f"matrix must have the spec's shape {spec.shape} and dtype "
                                      f"{spec.dtype}, got {m.shape} {m.dtype}")
             self._adopt(spec)
+            self.sum_of = sum_of
             return
         # Each field is checked by the spec's own validator (check_field), then against the
         # matrix's sizes; with every field a spec needs, the matrix adopts a spec.

@@ -34,6 +34,7 @@ from rotmod.response.materialised import MaterialisedResponse
 from rotmod.response.operator import BlockwiseResponse, ResponseOperator
 from rotmod.response.parallel import Block, block_grid, block_ranges, iter_blocks
 from rotmod.response.spec import ResponseSpec, check_response_matches, restore_fields
+from rotmod.sky.geometry import grid_from_dict
 
 __all__ = [
     "STORE_KINDS",
@@ -155,6 +156,10 @@ class StoredResponse(BlockwiseResponse):
                     f"{spec.dtype} response, array P is {tuple(array.shape)} {self.dtype}; "
                     "rebuild it")
             self._adopt(spec)
+            if meta.get("sum_of"):
+                self.sum_of = [(None if part["weights"] is None else np.asarray(part["weights"]),
+                                spec.replace(grid=grid_from_dict(part["grid"])))
+                               for part in meta["sum_of"]]
         # Products walk the stored chunks (every bin is stored: no half turn to fold).
         self.blocks = block_grid(tuple(array.shape), tuple(array.chunks[1:]))
 

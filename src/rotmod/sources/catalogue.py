@@ -18,8 +18,7 @@ from typing import Any
 
 import astropy.units as u
 import numpy as np
-from astropy.coordinates import ICRS, SkyCoord
-from scipy.interpolate import RegularGridInterpolator
+from astropy.coordinates import ICRS
 
 from rotmod.errors import ParameterError
 from rotmod.io.catalogue import SourceCatalogue, read_catalogue
@@ -27,7 +26,7 @@ from rotmod.io.regions import HealpixProbability
 from rotmod.response.columns import position_grid
 from rotmod.response.operator import ResponseOperator
 from rotmod.sources.localise import Region
-from rotmod.sources.model import PointSource, SkyModel, tangent_basis
+from rotmod.sources.model import PointSource, SkyModel
 
 __all__ = ["probability_map", "read_sky_model"]
 
@@ -142,26 +141,16 @@ def probability_map(region: Region, *, nside: int | None = None,
     if nside is None:
         nside = _nside_for(region.radius(0.68) / PIXELS_PER_R68)
     healpix = hp.HEALPix(nside=nside, order=order, frame=ICRS())  # refuses a bad nside
-    o = region.offsets
-    step = float(o[1] - o[0])
-    v0 = region.source.vector()
-    e1, e2 = tangent_basis(v0)  # the region's own tangent-plane axes
+    half = float(region.offsets[-1])
     # Every pixel whose centre may lie in the square: a cone over its corners, plus a pixel.
-    reach = np.degrees(np.arctan(np.sqrt(2.0) * o[-1])) + healpix.pixel_resolution.to_value(
+    reach = np.degrees(np.arctan(np.sqrt(2.0) * half)) + healpix.pixel_resolution.to_value(
         u.deg)
     pixels = np.asarray(healpix.cone_search_skycoord(region.source.position, reach * u.deg),
                         dtype=np.int64)
-    centres = healpix.healpix_to_skycoord(pixels)
-    v = np.asarray(SkyCoord(centres.ra, centres.dec, frame="icrs").cartesian.xyz.value).T
-    w = v / (v @ v0)[:, None]  # gnomonic projection onto the tangent plane
-    x, y = w @ e1, w @ e2
-    inside = (np.abs(x) <= o[-1]) & (np.abs(y) <= o[-1])
-    # Density per tangent-plane area: each point holds the probability of a step x step
-    # cell.  The gnomonic plane's area differs from solid angle by (1 + x^2 + y^2)^(3/2),
-    # < 1e-4 over a region a few degrees across, left to the normalisation below.
-    interp = RegularGridInterpolator((o, o), region.density / step**2)
-    dens = np.zeros(pixels.size)
-    dens[inside] = interp(np.column_stack([y[inside], x[inside]]))
+    # Density per tangent-plane area; the gnomonic plane's area differs from solid angle by
+    # (1 + x^2 + y^2)^(3/2), < 1e-4 over a region a few degrees across, left to the
+    # normalisation below.
+    dens = region.density_at(healpix.healpix_to_skycoord(pixels))
     prob = dens * healpix.pixel_area.to_value(u.sr)
     keep = prob > 0
     if not np.any(keep):

@@ -162,7 +162,10 @@ def detect(
         pixel = int(np.argmax(ts))
         if ts[pixel] < seed:
             break
-        name = f"S{len(model.sources) + 1}"
+        # The next free name "S<n>" (a given catalogue may hold "S1" already).
+        taken = {src.name for src in model.sources}
+        name = next(f"S{n}" for n in range(len(model.sources) + 1, 2 * len(taken) + 3)
+                    if f"S{n}" not in taken)
         trial = model.replace(sources=(*model.sources, PointSource(
             pixel_position(response, pixel), name=name, free_position=fit_positions)))
         trial = fitter.maximise(trial)[0]

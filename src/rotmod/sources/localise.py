@@ -26,7 +26,7 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.ndimage import gaussian_filter
 
 from rotmod._validate import as_angle_scalar
-from rotmod.conventions import source_angles
+from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
 from rotmod.response.columns import columns_at
 from rotmod.sources.fit import SourceFitter, geometric_scale
@@ -103,23 +103,44 @@ class Region:
             self.levels[containment] = float(p[min(k, p.size - 1)])
         return self.levels[containment]
 
-    def _tangent(self, position: Any) -> tuple[np.ndarray, np.ndarray]:
+    def tangent(self, positions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Coordinates (rad) of ``positions`` in the region's tangent plane (gnomonic).
+
+        ``positions``: a SkyCoord (scalar or array) for a source on the sky, ``(theta,
+        phi)`` (deg; scalars or arrays) for one in the instrument frame.
+        """
         v0, e1, e2 = self._basis()
-        probe = PointSource(position)
-        if probe.frame != self.source.frame:
-            raise ParameterError(f"position must be in the {self.source.frame} frame")
-        v = probe.vector()
-        w = v / (v @ v0)  # gnomonic projection onto the tangent plane
-        return np.atleast_1d(w @ e1), np.atleast_1d(w @ e2)
+        if self.source.frame == "celestial":
+            if not isinstance(positions, SkyCoord):
+                raise ParameterError("positions must be a SkyCoord for a source on the sky")
+            v = np.atleast_2d(np.asarray(positions.icrs.cartesian.xyz.value).T)
+        else:
+            if isinstance(positions, SkyCoord):
+                raise ParameterError("positions must be (theta, phi) for a source in the "
+                                     "instrument frame")
+            th, ph = (np.radians(np.atleast_1d(np.asarray(a, dtype=float))) for a in positions)
+            v = np.stack(source_direction(th, ph), axis=-1).reshape(-1, 3)
+        w = v / (v @ v0)[:, None]  # gnomonic projection onto the tangent plane
+        return w @ e1, w @ e2
+
+    def density_at(self, positions: Any) -> np.ndarray:
+        """Probability density per unit tangent-plane area (rad^-2) at ``positions`` (linear
+        interpolation between the points; 0 outside the square)."""
+        x, y = self.tangent(positions)
+        o = self.offsets
+        step = float(o[1] - o[0])
+        inside = (np.abs(x) <= o[-1]) & (np.abs(y) <= o[-1])
+        out = np.zeros(x.size)
+        if np.any(inside):
+            interp = RegularGridInterpolator((o, o), self.density / step**2)
+            out[inside] = interp(np.column_stack([y[inside], x[inside]]))
+        return out
 
     def contains(self, position: Any, containment: float = 0.9) -> bool:
         """Whether ``position`` (SkyCoord or ``(theta, phi)``) lies in the region."""
-        x, y = self._tangent(position)
-        o = self.offsets
-        if abs(x[0]) > o[-1] or abs(y[0]) > o[-1]:
-            return False
-        interp = RegularGridInterpolator((o, o), self.density)
-        return bool(interp([[y[0], x[0]]])[0] >= self.level(containment))
+        step = float(self.offsets[1] - self.offsets[0])
+        level = self.level(containment) / step**2
+        return bool(self.density_at(position)[0] >= level)
 
     def radius(self, containment: float = 0.9) -> float:
         """Radius (deg) of the circle about the source holding ``containment``."""

@@ -251,12 +251,22 @@ class SourceFitter:
                 except ParameterError:  # moved out of view
                     return np.inf
 
-            start = np.zeros(2)
-            simplex = np.array([start, [step, 0.0], [0.0, step]])
-            res = minimize(cost, start, method="Nelder-Mead",
-                           options={"initial_simplex": simplex, "xatol": 1e-4 * step,
-                                    "fatol": 1e-4, "maxiter": 400})
-            model = self.maximise(moved(res.x))[0]
+            # Nelder-Mead, restarted from where it stopped with a simplex a quarter the size
+            # until a restart no longer moves: a large first simplex crosses the rings of
+            # an RM's likelihood surface, and one run may stop short of the peak on them
+            # (measured: 0.1 deg and 5 in ln L short for a source of TS 570).
+            x, size = np.zeros(2), step
+            for _ in range(6):
+                simplex = np.array([x, x + np.array([size, 0.0]), x + np.array([0.0, size])])
+                res = minimize(cost, x, method="Nelder-Mead",
+                               options={"initial_simplex": simplex, "xatol": 1e-4 * step,
+                                        "fatol": 1e-5, "maxiter": 400})
+                moved_by = float(np.hypot(*(res.x - x)))
+                x = res.x
+                if moved_by < 1e-3 * step:
+                    break
+                size = max(0.25 * size, 1e-3 * step)
+            model = self.maximise(moved(x))[0]
         return model
 
     # -- per-source statistics ------------------------------------------------------------

@@ -187,8 +187,9 @@ def detect(
             # while a neighbour was missing leans toward it (the neighbour's modulation is
             # read as its own), which biases its flux and hides the neighbour's residual.
             model = fitter.fit_positions(model)
+        # Read only for its peak: TS only (limits and sensitivity are most of a map's cost).
         current = ts_map(response, fitter.data, model, fitter=fitter, progress=progress,
-                         ul_confidence=ul_confidence, sensitivity_ts=None)
+                         limits=False)
     # Prune: the weakest candidate below threshold goes, the rest are refitted, until every
     # found source passes (the sources given are kept whatever their TS).
     while len(model.sources) > given:

@@ -336,6 +336,7 @@ def ts_map(
     *,
     ul_confidence: float = 0.95,
     sensitivity_ts: float | None = 25.0,
+    limits: bool = True,
     fitter: SourceFitter | None = None,
     progress: ProgressArg = None,
     block_pixels: int | None = None,
@@ -357,6 +358,9 @@ def ts_map(
     sensitivity_ts : float or None
         TS that defines the sensitivity (25: 5 sigma at a fixed position), > 0; ``None``
         skips the sensitivity (NaN), which costs more than the rest of the map.
+    limits : bool
+        Compute the upper limits and the sensitivity (``False``: TS, flux and error only,
+        ~5x faster; the others NaN).
     fitter : SourceFitter, optional
         Reuse one built for the same response and data.
     progress : bool or callable, optional
@@ -374,7 +378,9 @@ def ts_map(
     q_ul = ul_threshold(ul_confidence)
     if sensitivity_ts is not None and not (np.isfinite(sensitivity_ts) and sensitivity_ts > 0):
         raise ParameterError(f"sensitivity_ts must be > 0 or None, got {sensitivity_ts!r}")
-    q_sens = 0.0 if sensitivity_ts is None else float(sensitivity_ts)
+    q_sens = 0.0 if sensitivity_ts is None or not limits else float(sensitivity_ts)
+    if not limits:
+        q_ul = 0.0
     f = SourceFitter(response, data) if fitter is None else fitter
     state = null_state(f, model)
     n_bins, n_sky = f.y.size, response.n_sky

@@ -32,7 +32,7 @@ from rotmod.response.operator import ResponseOperator
 from rotmod.sources.fit import FitResult, SourceFitter, fit_with
 from rotmod.sources.localise import Region, localise
 from rotmod.sources.model import PointSource, SkyModel
-from rotmod.sources.tsmap import TSMap, ts_map
+from rotmod.sources.tsmap import TSMap, scan_grid, ts_map
 
 __all__ = ["Detection", "detect", "pixel_position"]
 
@@ -129,12 +129,15 @@ def detect(
     fitter = SourceFitter(response, data)
     model = SkyModel() if model is None else model
     model = fitter.maximise(model)[0]
-    first = current = ts_map(response, fitter.data, model, fitter=fitter, progress=progress)
+    first = ts_map(response, fitter.data, model, fitter=fitter, progress=progress)
+    # The search reads only the TS of the maps in between: their upper limits and
+    # sensitivities (~90 % of a map's cost) are computed for the first and the final map.
+    current = first.ts
     history: list[dict[str, Any]] = []
     excluded: set[int] = set()
     added = 0
     while added < max_sources:
-        ts = np.where(np.isfinite(current.ts), current.ts, -np.inf).ravel()
+        ts = np.where(np.isfinite(current), current, -np.inf).ravel()
         if excluded:
             ts[list(excluded)] = -np.inf
         pixel = int(np.argmax(ts))
@@ -157,13 +160,13 @@ def detect(
             continue
         model = trial
         added += 1
-        current = ts_map(response, fitter.data, model, fitter=fitter, progress=progress)
+        current = scan_grid(response, fitter, model, 0.0, 0.0, progress)[:, 0]
     if fit_positions and len(model.sources) > 1:
         # Every position once more, with every other source now in the model.
         model = fitter.fit_positions(model)
     result = fit_with(fitter, model, ul_confidence=ul_confidence)
     final = ts_map(response, fitter.data, result.model, fitter=fitter, progress=progress) \
-        if added else current
+        if added else first
     regions: list[Region | None] = [None] * len(result.model.sources)
     if localise_sources:
         regions = [localise(fitter, result.model, k, systematic=systematic)

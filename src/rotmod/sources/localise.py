@@ -161,7 +161,8 @@ def _surface(fitter: SourceFitter, null: SkyModel, source: PointSource, half: fl
     v = v0[None, :] + xx.ravel()[:, None] * e1 + yy.ravel()[:, None] * e2
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     cols = columns_at(fitter.response, vectors_to_positions(source.frame, v))
-    out = test_source_scan(fitter, null_state(fitter, null), cols)
+    # Only the TS is read: no upper limits or sensitivities (most of a scan's cost).
+    out = test_source_scan(fitter, null_state(fitter, null), cols, 0.0, 0.0)
     return o, np.nan_to_num(out[:, 0], nan=0.0).reshape(n, n)
 
 def localise(

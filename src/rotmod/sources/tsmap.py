@@ -318,6 +318,30 @@ def test_source_scan(fitter: SourceFitter, state: tuple[np.ndarray, ...], column
     return out
 
 
+def scan_grid(response: ResponseOperator, fitter: SourceFitter, model: SkyModel | None,
+              q_ul: float, q_sens: float, progress: Progress = None) -> np.ndarray:
+    """:func:`test_source_scan` over every pixel of the response's grid, in blocks of
+    columns within the memory budget: ``(n_sky, 5)`` readings against the fitted ``model``
+    (``q <= 0`` skips the upper limit / sensitivity, as there)."""
+    state = null_state(fitter, model)
+    n_bins, n_sky = fitter.y.size, response.n_sky
+    per_pixel = 8.0 * (2 * n_bins + response.n_det * response.n_time)
+    check_memory(per_pixel + 8.0 * 6 * n_sky, f"a TS map of {n_sky} pixels",
+                 hint="use fewer pixels")
+    width = int(max(1, min(n_sky, memory_budget() // 8 // per_pixel, 4096)))
+    out = np.empty((n_sky, 5))
+    update, close = progress_callbacks(progress, n_sky, "TS map", "pixel")
+    try:
+        for n0 in range(0, n_sky, width):
+            n1 = min(n0 + width, n_sky)
+            out[n0:n1] = test_source_scan(fitter, state, response.block(n=(n0, n1)), q_ul,
+                                          q_sens)
+            update(n1, n_sky)
+    finally:
+        close()
+    return out
+
+
 def ts_map(
     response: ResponseOperator,
     data: Any,
@@ -355,22 +379,7 @@ def ts_map(
     if not (np.isfinite(sensitivity_ts) and sensitivity_ts > 0):
         raise ParameterError(f"sensitivity_ts must be > 0, got {sensitivity_ts!r}")
     f = SourceFitter(response, data) if fitter is None else fitter
-    state = null_state(f, model)
-    n_bins, n_sky = f.y.size, response.n_sky
-    per_pixel = 8.0 * (2 * n_bins + response.n_det * response.n_time)
-    check_memory(per_pixel + 8.0 * 6 * n_sky, f"a TS map of {n_sky} pixels",
-                 hint="use fewer pixels")
-    width = int(max(1, min(n_sky, memory_budget() // 8 // per_pixel, 4096)))
-    out = np.empty((n_sky, 5))
-    update, close = progress_callbacks(progress, n_sky, "TS map", "pixel")
-    try:
-        for n0 in range(0, n_sky, width):
-            n1 = min(n0 + width, n_sky)
-            out[n0:n1] = test_source_scan(f, state, response.block(n=(n0, n1)), q_ul,
-                                          float(sensitivity_ts))
-            update(n1, n_sky)
-    finally:
-        close()
-    shape = response.grid.shape if response.grid is not None else (1, n_sky)
+    out = scan_grid(response, f, model, q_ul, float(sensitivity_ts), progress)
+    shape = response.grid.shape if response.grid is not None else (1, response.n_sky)
     maps = [out[:, j].reshape(shape) for j in range(5)]
     return TSMap(response.grid, *maps, ul_confidence, float(sensitivity_ts))

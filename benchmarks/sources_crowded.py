@@ -70,11 +70,11 @@ from rotmod.response import build_response
 from rotmod.response.columns import columns_at
 from rotmod.sky import SkyGrid
 from rotmod.sources import PointSource, SkyModel, SourceFitter, detect, ts_map
-from rotmod.sources.fit import fit_with
-from rotmod.sources.tsmap import null_state, test_source_scan
+from rotmod.sources.fitting import fit_with
+from rotmod.sources.tsmap import null_state, scan_test_source
 
 # The module (the package binds the name ``detect`` to the function).
-detect_module = importlib.import_module("rotmod.sources.detect")
+detect_module = importlib.import_module("rotmod.sources.detection")
 # ``--threads tuned`` (see docs/sources_crowded.md): on a shared 2-core machine, OpenBLAS's
 # threads and OpenMP's spin-waiting barriers turn the fits' many small products and kernels
 # into scheduler waits.  Set in the environment before numpy and numba start (the script
@@ -136,7 +136,7 @@ def fluxes_for_snr(response, theta: np.ndarray, phi: np.ndarray, snr: np.ndarray
     cols = columns_at(response, (theta, phi))
     out = np.empty(snr.size)
     for k in range(snr.size):
-        out[k] = test_source_scan(fitter, state, cols[:, :, k:k + 1], 2.706,
+        out[k] = scan_test_source(fitter, state, cols[:, :, k:k + 1], 2.706,
                                   float(snr[k] ** 2))[0, 4]
     return out
 
@@ -372,7 +372,7 @@ def speed(response, data, args) -> dict:
     ts_only = np.empty(0)
     for n0 in range(0, response.n_sky, 4096):
         n1 = min(n0 + 4096, response.n_sky)
-        ts_only = np.concatenate([ts_only, test_source_scan(
+        ts_only = np.concatenate([ts_only, scan_test_source(
             fitter, state, response.block(n=(n0, n1)), 0.0, 0.0)[:, 0]])
     t_ts = time.perf_counter() - t0
     # The naive way: timed on a uniform random subset of the pixels the data see (scaled by
@@ -554,7 +554,7 @@ def report(results: dict, args, load: tuple[float, ...],
         log("|---|---:|---:|")
         log(f"| ts_map (TS, flux, UL, sensitivity; as detect calls it) | {sp['t_full']:.2f} | "
             f"{sp['ratio_full']:.1f} |")
-        log(f"| TS-only pass (test_source_scan, q_ul = q_sens = 0) | {sp['t_ts_only']:.2f} | "
+        log(f"| TS-only pass (scan_test_source, q_ul = q_sens = 0) | {sp['t_ts_only']:.2f} | "
             f"{sp['ratio_ts_only']:.1f} |")
         log(f"| naive: scipy L-BFGS-B per pixel (38 parameters), {sp['naive_pixels']} random "
             f"px timed ({sp['t_naive_subset']:.1f} s), scaled | {sp['t_naive_map']:.0f} | 1 |")

@@ -14,7 +14,7 @@ from rotmod.response import build_response
 from rotmod.response.columns import columns_at
 from rotmod.sky import Attitude, HealpixGrid
 from rotmod.sources import PointSource, SkyModel, SourceFitter, fit, ts_map
-from rotmod.sources.detect import pixel_position
+from rotmod.sources.detection import pixel_position
 from rotmod.sources.tsmap import null_state, scan_test_source
 
 BKG = 2.0

@@ -120,8 +120,8 @@ register("rotmod.reconstruction.base.ReconstructionResult", "fits", writer=_writ
 register(FitsImage, "fits", reader=read_image, extensions=(".fits", ".fits.gz"),
          identify=_is_image)
 # Source products, by the import paths of the sources package's classes (as above).
-for _cls, _writer in (("rotmod.sources.detect.Detection", write_detection),
-                      ("rotmod.sources.fit.FitResult", write_catalogue),
+for _cls, _writer in (("rotmod.sources.detection.Detection", write_detection),
+                      ("rotmod.sources.fitting.FitResult", write_catalogue),
                       ("rotmod.sources.lightcurve.LightCurve", write_light_curve)):
     register(_cls, "fits", writer=_writer, extensions=(".fits", ".fits.gz"))
     register(_cls, "ecsv", writer=_writer, extensions=(".ecsv",))

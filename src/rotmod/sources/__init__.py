@@ -14,10 +14,10 @@
 See ``docs/sources.md``.
 """
 
-from rotmod.sources.detect import Detection, detect
-from rotmod.sources.fit import FitResult, SourceFitter, fit
+from rotmod.sources.detection import Detection, detect
+from rotmod.sources.fitting import FitResult, SourceFitter, fit
 from rotmod.sources.lightcurve import LightCurve, light_curve
-from rotmod.sources.localise import Region, localise
+from rotmod.sources.localisation import Region, localise
 from rotmod.sources.model import PointSource, SkyModel
 from rotmod.sources.tsmap import TSMap, ts_map
 

@@ -25,7 +25,7 @@ from rotmod.io.catalogue import SourceCatalogue, read_catalogue
 from rotmod.io.regions import HealpixProbability
 from rotmod.response.columns import position_grid
 from rotmod.response.operator import ResponseOperator
-from rotmod.sources.localise import Region
+from rotmod.sources.localisation import Region
 from rotmod.sources.model import PointSource, SkyModel
 
 __all__ = ["probability_map", "read_sky_model"]

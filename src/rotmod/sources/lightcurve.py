@@ -28,7 +28,7 @@ from rotmod.events.folding import fold
 from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.response.operator import ResponseOperator
 from rotmod.response.parallel import map_blocks
-from rotmod.sources.fit import SourceFitter, fit_with, ul_threshold
+from rotmod.sources.fitting import SourceFitter, fit_with, ul_threshold
 from rotmod.sources.model import SkyModel
 
 __all__ = ["LightCurve", "light_curve"]

@@ -35,7 +35,7 @@ from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.response.operator import ResponseOperator
 from rotmod.response.parallel import block_grid, iter_blocks
 from rotmod.sky.geometry import SkyGeometry
-from rotmod.sources.fit import SourceFitter, ul_threshold
+from rotmod.sources.fitting import SourceFitter, ul_threshold
 from rotmod.sources.model import SkyModel
 
 __all__ = ["TSMap", "ts_map"]

@@ -38,8 +38,8 @@ from rotmod._validate import as_angle_scalar
 from rotmod.errors import ParameterError
 from rotmod.progress import ProgressArg
 from rotmod.response.operator import ResponseOperator
-from rotmod.sources.fit import FitResult, SourceFitter, fit_with
-from rotmod.sources.localise import Region, localise
+from rotmod.sources.fitting import FitResult, SourceFitter, fit_with
+from rotmod.sources.localisation import Region, localise
 from rotmod.sources.model import PointSource, SkyModel
 from rotmod.sources.tsmap import TSMap, ts_map
 

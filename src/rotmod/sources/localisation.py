@@ -30,7 +30,7 @@ from rotmod._validate import as_angle_scalar
 from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
 from rotmod.response.columns import columns_at
-from rotmod.sources.fit import SourceFitter, geometric_scale
+from rotmod.sources.fitting import SourceFitter, geometric_scale
 from rotmod.sources.model import PointSource, SkyModel, tangent_basis
 from rotmod.sources.tsmap import null_state, scan_test_source
 

@@ -68,8 +68,8 @@ from rotmod.response import build_response
 from rotmod.response.columns import columns_at
 from rotmod.sky import SkyGrid
 from rotmod.sources import PointSource, SkyModel, SourceFitter, fit, localise
-from rotmod.sources.detect import pixel_position
-from rotmod.sources.fit import geometric_scale
+from rotmod.sources.detection import pixel_position
+from rotmod.sources.fitting import geometric_scale
 from rotmod.sources.model import tangent_basis
 from rotmod.sources.tsmap import null_state, scan_test_source
 

@@ -322,7 +322,8 @@ def run_seed(seed: int, n_sources: int, response, args) -> dict:
                   "nearest_real": float(sep_ct[j, snr >= args.false_snr].min()),
                   "nearest_other": float(sep_cc[j].min()) if len(cat) > 1 else None,
                   "claimed": bool(np.any(claimed == j))} for j in range(len(cat))]
-    history = [{k: (bool(v) if isinstance(v, bool | np.bool_) else float(v))
+    history = [{k: (bool(v) if isinstance(v, bool | np.bool_)
+                    else v if isinstance(v, str) else float(v))
                 for k, v in h.items()} for h in det.history]
     out = {"seed": seed, "n_sources": n_sources, "t_detect": t_detect, "steps": steps.seconds,
            "calls": steps.calls, "t_oracle": t_oracle, "n_oracle": int(strong.size),

@@ -86,3 +86,13 @@ def test_light_curve_refuses_bad_edges(survey_instrument, field):
         light_curve(field, ev, model, [10.0, 5.0])
     with pytest.raises(ParameterError, match="at least one source"):
         light_curve(field, ev, SkyModel(), [0.0, 100.0])
+
+
+def test_the_residual_map_carries_limits_also_when_every_candidate_is_pruned(field):
+    # A seed threshold low enough to try noise peaks, a threshold none of them passes.
+    null = SkyModel(background=np.full(7, BKG))
+    found = detect(field, null.simulate(field, 4000.0, seed=5), threshold=1e6,
+                   seed_threshold=0.5, max_sources=2, localise_sources=False)
+    assert found.sources == ()
+    assert [h["pruned"] for h in found.history if "pruned" in h] == ["S2", "S1"]
+    assert np.all(np.isfinite(found.ts_map.flux_ul))

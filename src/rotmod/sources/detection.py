@@ -205,8 +205,11 @@ def detect(
         if fit_positions:
             model = fitter.fit_positions(fitter.maximise(model)[0])
     result = fit_with(fitter, model, ul_confidence=ul_confidence)
+    # The residual map with its limits: the first map if no candidate was ever kept (the
+    # loop's own maps are TS only).
+    kept = any(h.get("added") for h in history)
     final = ts_map(response, fitter.data, result.model, fitter=fitter, progress=progress,
-                   ul_confidence=ul_confidence) if added else current
+                   ul_confidence=ul_confidence) if kept else first
     regions: list[Region | None] = [None] * len(result.model.sources)
     if localise_sources:
         regions = [localise(fitter, result.model, k, systematic=systematic)

@@ -62,6 +62,18 @@ def add_meta_cards(hdr: Any, meta: dict[str, Any] | None) -> None:
         hdr[key] = (value, fitting_comment(key, value, _META_COMMENTS.get(key, "")))
 
 
+def stamp_header(hdr: Any, *, seed: Any = None, command: Any = None,
+                 meta: dict[str, Any] | None = None, cards: Any = None) -> None:
+    """Stamp a product's FITS header: ``ORIGIN``, the provenance cards
+    (:func:`~rotmod.io.provenance.provenance_cards` of ``seed`` and ``command``, or the given
+    ``cards``) and the caller's ``meta`` (:func:`add_meta_cards`)."""
+    hdr["ORIGIN"] = ("rotmod", "organisation or software that made the file")
+    for key, value, comment in (provenance_cards(seed=seed, command=command) if cards is None
+                                else cards):
+        hdr[key] = (value, comment)
+    add_meta_cards(hdr, meta)
+
+
 @dataclass
 class FitsImage:
     """A sky image read back from FITS.
@@ -163,9 +175,7 @@ def write_image(
             )
     hdus = g.image_hdus(img, unc, bunit)
     hdr = hdus[0].header
-    hdr["ORIGIN"] = ("rotmod", "organisation or software that made the file")
-    for key, value, comment in provenance_cards(seed=seed, command=command):
-        hdr[key] = (value, comment)
+    stamp_header(hdr, seed=seed, command=command)
     if result is not None:
         hdr["RECMETH"] = (result.method, "reconstruction method")
         hdr["NITER"] = (int(result.n_iter), "iterations")

@@ -30,8 +30,8 @@ from astropy.io import fits
 from rotmod.errors import ParameterError
 from rotmod.io._fits import open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite, write_text
-from rotmod.io.images import add_meta_cards
-from rotmod.io.provenance import creator, provenance_cards
+from rotmod.io.images import stamp_header
+from rotmod.io.provenance import creator
 
 if TYPE_CHECKING:
     from rotmod.sources import Region
@@ -190,10 +190,7 @@ def write_probability_map(
         [fits.Column("PIXEL", "K", array=prob.pixels),
          fits.Column("PROB", "D", unit="", array=prob.prob)], name=PROB_EXTNAME)
     for h in (primary.header, table.header):
-        h["ORIGIN"] = ("rotmod", "organisation or software that made the file")
-        for key, value, comment in provenance_cards(seed=seed, command=command):
-            h[key] = (value, comment)
-        add_meta_cards(h, meta)
+        stamp_header(h, seed=seed, command=command, meta=meta)
     h = table.header
     h["PIXTYPE"] = ("HEALPIX", "HEALPix pixelisation")
     h["ORDERING"] = (prob.order.upper(), "pixel ordering scheme")

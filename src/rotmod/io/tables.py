@@ -22,7 +22,7 @@ from astropy.table import Table
 
 from rotmod.errors import ParameterError
 from rotmod.io.atomic import atomic_path, check_overwrite
-from rotmod.io.images import add_meta_cards
+from rotmod.io.images import stamp_header
 from rotmod.io.provenance import fitting_comment, provenance_cards
 from rotmod.sky.attitude import AttitudeTable
 
@@ -107,10 +107,7 @@ def write_product_table(
             hdu.header.comments[key] = fitting_comment(key, hdu.header[key], comment)
     primary = fits.PrimaryHDU()
     for h in (primary.header, hdu.header):  # the primary too: where tools look first
-        h["ORIGIN"] = ("rotmod", "organisation or software that made the file")
-        for key, value, comment in cards:
-            h[key] = (value, comment)
-        add_meta_cards(h, meta)
+        stamp_header(h, meta=meta, cards=cards)
     with atomic_path(p) as tmp:
         fits.HDUList([primary, hdu]).writeto(tmp, overwrite=True, checksum=True)
     return p

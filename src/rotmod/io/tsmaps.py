@@ -37,8 +37,7 @@ from astropy.wcs import WCS
 from rotmod.errors import ParameterError
 from rotmod.io._fits import open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite
-from rotmod.io.images import add_meta_cards
-from rotmod.io.provenance import provenance_cards
+from rotmod.io.images import add_meta_cards, stamp_header
 from rotmod.sky.geometry import SkyGeometry, grid_from_dict, image_from_hdus
 
 if TYPE_CHECKING:
@@ -126,9 +125,7 @@ def write_ts_map(
                              f"{type(grid).__name__}")
     primary = fits.PrimaryHDU()
     h = primary.header
-    h["ORIGIN"] = ("rotmod", "organisation or software that made the file")
-    for key, value, comment in provenance_cards(seed=seed, command=command):
-        h[key] = (value, comment)
+    stamp_header(h, seed=seed, command=command)
     h["HDUCLAS1"] = ("TSMAP", "TS map of a test point source")
     h["UL_CONF"] = (float(ts_map.ul_confidence), "confidence of FLUX_UL")
     h["SENS_TS"] = (float(ts_map.sensitivity_ts), "TS that defines SENSITIVITY")

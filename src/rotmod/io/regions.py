@@ -32,6 +32,7 @@ from rotmod.io._fits import open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite, write_text
 from rotmod.io.images import stamp_header
 from rotmod.io.provenance import creator
+from rotmod.sky.healpix import add_healpix_cards
 
 if TYPE_CHECKING:
     from rotmod.sources import Region
@@ -192,15 +193,9 @@ def write_probability_map(
     for h in (primary.header, table.header):
         stamp_header(h, seed=seed, command=command, meta=meta)
     h = table.header
-    h["PIXTYPE"] = ("HEALPIX", "HEALPix pixelisation")
-    h["ORDERING"] = (prob.order.upper(), "pixel ordering scheme")
-    h["NSIDE"] = (prob.nside, "HEALPix resolution parameter")
-    h["ORDER"] = (prob.nside.bit_length() - 1, "NSIDE = 2**ORDER")
-    h["FIRSTPIX"] = (0, "first pixel index of the sphere")
-    h["LASTPIX"] = (12 * prob.nside**2 - 1, "last pixel index of the sphere")
+    add_healpix_cards(h, prob.nside, prob.order)
     h["INDXSCHM"] = ("EXPLICIT", "pixel indices in the PIXEL column")
     h["OBJECT"] = ("PARTIAL", "a part of the sky; no probability elsewhere")
-    h["COORDSYS"] = ("C", "celestial (ICRS)")
     h["HDUCLAS1"] = ("PROBMAP", "position probability of a source")
     h["SRCNAME"] = (prob.name, "the source")
     with atomic_path(p) as tmp:

@@ -136,17 +136,23 @@ class HealpixGrid(SkyGeometry):
         hdus = pixel_table_hdus(image, uncertainty, bunit, name="HEALPIX",
                                 index=("PIX", self.pixels), value="VALUE")
         h = hdus[1].header
-        h["PIXTYPE"] = ("HEALPIX", "HEALPix pixelisation")
-        h["ORDERING"] = (self.order.upper(), "pixel ordering scheme")
-        h["NSIDE"] = (self.nside, "HEALPix resolution parameter")
-        h["ORDER"] = (self.nside.bit_length() - 1, "NSIDE = 2**ORDER")
-        h["FIRSTPIX"] = (0, "first pixel index of the sphere")
-        h["LASTPIX"] = (12 * self.nside**2 - 1, "last pixel index of the sphere")
+        add_healpix_cards(h, self.nside, self.order)
         h["INDXSCHM"] = ("SPARSE", "pixel indices in the PIX column")
         h["HPX_CONV"] = ("GADF", "HEALPix FITS convention of gamma-astro-data")
         h["OBJECT"] = ("PARTIAL", "a cone, not the whole sky")
-        h["COORDSYS"] = ("C", "celestial (ICRS)")
         return hdus
+
+
+def add_healpix_cards(hdr: Any, nside: int, order: str) -> None:
+    """The cards every HEALPix table of rotmod carries (ICRS): ``PIXTYPE``, ``ORDERING``,
+    ``NSIDE``/``ORDER``, ``FIRSTPIX``/``LASTPIX`` and ``COORDSYS``."""
+    hdr["PIXTYPE"] = ("HEALPIX", "HEALPix pixelisation")
+    hdr["ORDERING"] = (order.upper(), "pixel ordering scheme")
+    hdr["NSIDE"] = (nside, "HEALPix resolution parameter")
+    hdr["ORDER"] = (nside.bit_length() - 1, "NSIDE = 2**ORDER")
+    hdr["FIRSTPIX"] = (0, "first pixel index of the sphere")
+    hdr["LASTPIX"] = (12 * nside**2 - 1, "last pixel index of the sphere")
+    hdr["COORDSYS"] = ("C", "celestial (ICRS)")
 
 
 GRID_KINDS.register(HealpixGrid.kind, HealpixGrid)

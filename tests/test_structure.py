@@ -49,7 +49,8 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("simulation", {"montecarlo"}),
     ("files", {"io"}),
     ("response", {"response"}),
-    ("users", {"reconstruction", "sources", "calibration", "design", "plotting", "testing"}),
+    ("users", {"reconstruction", "sources", "bursts", "calibration", "design", "plotting",
+               "testing"}),
     ("products", {"paper", "cli"}),
 ]
 #: ``hasattr`` calls allowed in src (module path relative to src/rotmod -> why): none.  Ask

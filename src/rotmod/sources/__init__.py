@@ -8,7 +8,6 @@
 * :func:`ts_map` -- TS, flux, upper limit and sensitivity of a test source in every pixel;
 * :func:`detect` -- the iterative search (TS map, add the peak, refit all) and
   :func:`localise` -- regions from the likelihood surface with a systematic term;
-* :func:`light_curve` -- every source's flux refitted per time interval.
 * :func:`light_curve` -- fluxes of known sources per time interval.
 
 See ``docs/sources.md``.

@@ -12,7 +12,10 @@
   profile evaluations (wide fields);
 * :func:`write_response` / :func:`save_response` / :func:`open_response` -- responses on
   disk (zarr, :mod:`rotmod.io.response_store`), computed in blocks (locally or on a Dask
-  cluster, :mod:`rotmod.response.parallel`) and read lazily.
+  cluster, :mod:`rotmod.response.parallel`) and read lazily;
+* :class:`UnfoldedResponse` -- the response to counts in short time bins of a window
+  (not folded), with a transient's light curve and the attitude at each bin: a burst's
+  likelihood.
 
 Reconstruction sees only :class:`ResponseOperator` (``forward``, ``adjoint``,
 ``sensitivity``, ``as_linear_operator``); every operator gives its values with
@@ -33,6 +36,7 @@ from rotmod.response.stored import (
     open_response,
     save_response,
 )
+from rotmod.response.unfolded import UnfoldedResponse, aligned_edges
 from rotmod.response.writer import write_response
 
 __all__ = [
@@ -44,6 +48,8 @@ __all__ = [
     "ResponseSpec",
     "StoredResponse",
     "TimeBinning",
+    "UnfoldedResponse",
+    "aligned_edges",
     "build_response",
     "load_response",
     "open_response",

@@ -23,6 +23,7 @@ from astropy.coordinates import SkyCoord
 from rotmod.errors import ParameterError
 from rotmod.response.materialised import build_response
 from rotmod.response.operator import ResponseOperator
+from rotmod.response.unfolded import UnfoldedResponse
 from rotmod.sky.geometry import SkyGeometry
 from rotmod.sky.points import DirectionList, PositionList
 
@@ -96,6 +97,9 @@ def columns_at(response: ResponseOperator, positions: Any) -> np.ndarray:
     ndarray, shape (n_det, n_time, n_positions)
         ``forward`` of a unit source at each position, in the response's units.
     """
+    if isinstance(response, UnfoldedResponse):
+        # Its rows are the folded responses' rows, picked per time bin and weighted.
+        return response.gather([columns_at(p, positions) for p in response.parts])
     out = np.zeros((response.n_det, response.n_time, 0))
     for weights, spec in response.components():
         points = position_grid(spec.grid, positions)

@@ -35,7 +35,7 @@ from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.response.operator import ResponseOperator
 from rotmod.response.parallel import block_grid, iter_blocks
 from rotmod.sky.geometry import SkyGeometry
-from rotmod.sources.fitting import SourceFitter, ul_threshold
+from rotmod.sources.fitting import FitBins, SourceFitter, ul_threshold
 from rotmod.sources.model import SkyModel
 
 __all__ = ["TSMap", "ts_map"]
@@ -283,10 +283,10 @@ def null_state(fitter: SourceFitter, model: SkyModel | None) -> tuple[np.ndarray
     when the background is known, not fitted) and ``b0`` the null's levels.
     """
     model, res = fitter.maximise(SkyModel() if model is None else model)
-    n_det, n_t = fitter.data.shape
-    det = np.broadcast_to(np.arange(n_det)[:, None], (n_det, n_t))[fitter.valid].astype(np.int64)
+    n_det = fitter.data.shape[0]
+    det = fitter.bins.detector
     if fitter.fit_background:
-        tb = (fitter.exposure * fitter.template(model))[fitter.valid]
+        tb = fitter.bins(fitter.exposure * fitter.template(model))
         b0 = np.asarray(model.background, dtype=float)
     else:
         tb, b0 = np.zeros(det.size), np.zeros(n_det)
@@ -313,16 +313,16 @@ def scan_test_source(fitter: SourceFitter, state: tuple[np.ndarray, ...], column
     q_ul, q_sens : float
         ``2 delta ln L`` of the upper limit and TS of the sensitivity (<= 0: skipped).
     """
-    return _scan_block(columns, None, fitter.exposure, fitter.valid, fitter.y, *state,
+    return _scan_block(columns, None, fitter.exposure, fitter.bins, fitter.y, *state,
                        q_ul, q_sens)
 
 
-def _scan_block(columns: np.ndarray, _block: Any, exposure: np.ndarray, valid: np.ndarray,
+def _scan_block(columns: np.ndarray, _block: Any, exposure: np.ndarray, bins: FitBins,
                 y: np.ndarray, m_rest: np.ndarray, det: np.ndarray, tb: np.ndarray,
                 b0: np.ndarray, q_ul: float, q_sens: float) -> np.ndarray:
     """The scan of one block of columns (the ``reduce`` of the block walk: on a Dask
     worker, only the ``(k, 5)`` result travels back)."""
-    ec = (exposure[:, :, None] * columns)[valid]
+    ec = bins(exposure[:, :, None] * columns)
     out = np.empty((columns.shape[2], 5))
     _ts_pixels(np.ascontiguousarray(ec.T, dtype=np.float64), y, m_rest, det, tb,
                np.array(b0, dtype=float), float(q_ul), float(q_sens), out)
@@ -402,7 +402,7 @@ def ts_map(
         # as tasks on a Dask cluster; each result lands at its own pixels, so the map is the
         # same bit for bit either way.
         for _, (_, (n0, n1)), res in iter_blocks(
-                response, blocks, f.exposure, f.valid, f.y, *state, q_ul, q_sens,
+                response, blocks, f.exposure, f.bins, f.y, *state, q_ul, q_sens,
                 reduce=_scan_block, scheduler=scheduler,
                 client=client):
             out[n0:n1] = res

@@ -3,7 +3,37 @@
 A burst lasts a few rotations of the mask or less, so its counts are not folded: the
 likelihood is that of the time-tagged counts in short bins, with the burst's light curve in
 the model (:class:`rotmod.response.UnfoldedResponse`), and the background fitted outside
-the burst.  See ``docs/bursts.md``.
+the burst.
+
+* :func:`search` -- candidates in the detector-summed rates over several timescales and
+  energy bands, at a stated false-alarm rate;
+* :func:`fit_background`, :func:`burst_light_curve`, :func:`durations` -- the background
+  per detector, the Bayesian-block light curve, T90/T50, net counts and peak rate;
+* :func:`localise_burst` -- the position: a coarse TS map of the visible sky, continuous
+  refits, the region from the likelihood surface;
+* :func:`analyse_burst` -- all of it from a candidate to a :class:`Burst` with a
+  GCN-style summary;
+* :func:`simulate_burst` -- injected bursts (exact model) for tests and calibration.
+
+See ``docs/bursts.md``.
 """
 
-__all__: list[str] = []
+from rotmod.bursts.analysis import Burst, analyse_burst
+from rotmod.bursts.inject import simulate_burst
+from rotmod.bursts.localisation import BurstPosition, localise_burst
+from rotmod.bursts.measure import (
+    Background,
+    BurstLightCurve,
+    Durations,
+    burst_light_curve,
+    durations,
+    fit_background,
+    norris_pulse,
+    true_durations,
+)
+from rotmod.bursts.search import Candidate, SearchResult, search
+
+__all__ = ["Background", "Burst", "BurstLightCurve", "BurstPosition", "Candidate",
+           "Durations", "SearchResult", "analyse_burst", "burst_light_curve", "durations",
+           "fit_background", "localise_burst", "norris_pulse", "search", "simulate_burst",
+           "true_durations"]

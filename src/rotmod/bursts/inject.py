@@ -29,23 +29,7 @@ from rotmod.response import aligned_edges, build_response
 from rotmod.sky.attitude import Attitude
 from rotmod.sky.points import DirectionList
 
-__all__ = ["norris_pulse", "simulate_burst"]
-
-
-def norris_pulse(t: Any, start: float, rise: float, decay: float,
-                 amplitude: float = 1.0) -> np.ndarray:
-    """A Norris et al. (2005, ApJ 627, 324) pulse: ``A l exp(-t1/(t-ts) - (t-ts)/t2)``.
-
-    ``l = exp(2 sqrt(t1/t2))`` makes ``A`` the peak, reached at ``ts + sqrt(t1 t2)``; zero
-    before ``ts``.
-    """
-    t = np.asarray(t, dtype=float)
-    dt = t - start
-    out = np.zeros_like(t)
-    on = dt > 0
-    lam = np.exp(2.0 * np.sqrt(rise / decay))
-    out[on] = amplitude * lam * np.exp(-rise / dt[on] - dt[on] / decay)
-    return out
+__all__ = ["simulate_burst"]
 
 
 def simulate_burst(

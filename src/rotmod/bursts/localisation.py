@@ -22,6 +22,8 @@ burst is fitted with the burst, as in the source fits).  The response is an
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -32,19 +34,22 @@ from astropy.coordinates import SkyCoord
 
 from rotmod._validate import as_angle_scalar, as_int
 from rotmod.binning import TimeBinning
+from rotmod.bursts.measure import Background, BurstLightCurve
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
 from rotmod.progress import ProgressArg
 from rotmod.reconstruction.data import PoissonData
-from rotmod.response import UnfoldedResponse, aligned_edges, build_response
+from rotmod.response import ResponseOperator, UnfoldedResponse, aligned_edges, build_response
+from rotmod.response.columns import columns_at
 from rotmod.sky.attitude import Attitude, AttitudeTable
 from rotmod.sky.geometry import SkyGeometry
 from rotmod.sky.healpix import HealpixGrid
+from rotmod.sky.points import PositionList
 from rotmod.sources.detection import pixel_position
-from rotmod.sources.fitting import FitResult, SourceFitter, fit, fit_with, geometric_scale
-from rotmod.sources.localisation import Region, localise
-from rotmod.sources.model import PointSource, SkyModel
-from rotmod.sources.tsmap import TSMap, ts_map
+from rotmod.sources.fitting import FitResult, SourceFitter, fit_with, geometric_scale
+from rotmod.sources.localisation import Region, localise, vectors_to_positions
+from rotmod.sources.model import PointSource, SkyModel, tangent_basis
+from rotmod.sources.tsmap import TSMap, null_state, scan_test_source, ts_map
 
 __all__ = ["BurstCounts", "BurstPosition", "bin_events", "burst_response", "localise_burst"]
 
@@ -156,18 +161,29 @@ def bin_events(events: EventList, t_start: Any, t_stop: Any, *,
 
 
 def burst_response(counts: BurstCounts, grid_for: Callable[[Attitude], SkyGeometry], *,
-                   energy: Any, model: Any = "exact", weight: Any = None
-                   ) -> UnfoldedResponse:
+                   energy: Any, model: Any = "exact", weight: Any = None,
+                   cache: dict[Any, ResponseOperator] | None = None) -> UnfoldedResponse:
     """The unfolded response of ``counts``: one folded response per attitude segment on
     the grid ``grid_for(attitude)``, read per time bin and weighted by the light curve
-    ``weight`` ``(n_time,)`` (default constant)."""
+    ``weight`` ``(n_time,)`` (default constant).
+
+    ``cache`` (a dict the caller keeps) holds the folded responses already computed, by
+    attitude, grid, binning, model and energy: they depend on the attitude only, not on the
+    burst, so a flight system computes them ahead of the trigger.
+    """
     inst = counts.events.instrument
-    used = np.unique(counts.segment)
+    cache = {} if cache is None else cache
     parts = []
-    for j in range(len(counts.attitudes)):
-        att = counts.attitudes[j] if j in used else counts.attitudes[int(used[0])]
-        parts.append(build_response(inst, grid_for(att), counts.time_bins, model=model,
-                                    energy=energy, dtype=np.float64))
+    for att in counts.attitudes:
+        grid = grid_for(att)
+        key = (att.ra, att.dec, att.roll, json.dumps(grid.to_dict(), sort_keys=True,
+                                                     default=str),
+               tuple(counts.time_bins.to_dict().items()), str(model), float(energy),
+               json.dumps(inst.to_dict(), sort_keys=True, default=str))
+        if key not in cache:
+            cache[key] = build_response(inst, grid, counts.time_bins, model=model,
+                                        energy=energy, dtype=np.float64)
+        parts.append(cache[key])
     return UnfoldedResponse(parts, counts.segment, counts.phase, weight, counts.edges)
 
 
@@ -200,6 +216,12 @@ class BurstPosition:
         The TS map of the visible sky the search started from.
     response : UnfoldedResponse
         The response of the fit (its light curve weights).
+    counts : BurstCounts
+        The counts of the fit.
+    alternatives : tuple of (SkyCoord, float)
+        Other local maxima refitted, with their TS below the best (``delta TS``): a mode
+        within a few units of TS (the mirror image of a symmetric array, a short burst's
+        partial turn) is a real ambiguity, stated in the summary.
     """
 
     position: SkyCoord
@@ -209,6 +231,8 @@ class BurstPosition:
     fit: FitResult
     coarse: TSMap
     response: UnfoldedResponse
+    counts: BurstCounts
+    alternatives: tuple[tuple[SkyCoord, float], ...] = ()
 
     @property
     def ts(self) -> float:
@@ -241,70 +265,181 @@ def _local_maxima(tsm: TSMap, grid: HealpixGrid, n: int) -> list[int]:
     return picked
 
 
+def _best_near(fitter: SourceFitter, null: tuple[np.ndarray, ...], source: PointSource,
+               half: float, n: int) -> PointSource:
+    """The point of highest TS on an ``n x n`` tangent-plane grid of half-width ``half``
+    (rad) around ``source``."""
+    v0 = source.vector()
+    e1, e2 = tangent_basis(v0)
+    o = np.linspace(-half, half, n)
+    xx, yy = np.meshgrid(o, o)
+    v = v0[None, :] + xx.ravel()[:, None] * e1 + yy.ravel()[:, None] * e2
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    cols = columns_at(fitter.response, vectors_to_positions(source.frame, v))
+    ts = np.nan_to_num(scan_test_source(fitter, null, cols, 0.0, 0.0)[:, 0], nan=-np.inf)
+    return source.at_vector(v[int(np.argmax(ts))])
+
+
+def default_time_bins(instrument: Any, radius_deg: float) -> TimeBinning:
+    """Mask-angle bins that resolve the modulation out to ``radius_deg`` off axis.
+
+    The slats' shadow moves across a detector at up to ``L tan(theta)`` per radian of
+    mask angle, so one period ``p = a + b`` of the mask passes in ``p / (L tan theta)``
+    rad; four samples per period (up to 60 deg off axis, beyond which the effective area
+    is small) fix the number of samples per turn, taken as bins of two sub-samples each
+    (``"average"`` mode: a bin's response is its mean, as its counts are).
+    """
+    mask = instrument.mask
+    theta = np.radians(min(radius_deg, 60.0))
+    samples = 4.0 * 2.0 * np.pi * mask.height * np.tan(theta) / mask.period
+    n = int(2 ** np.ceil(np.log2(max(samples, 64.0))))
+    return TimeBinning(n // 2, "average", 2)
+
+
+def coarse_time_bins(fine: TimeBinning) -> TimeBinning:
+    """The coarse map's bins: 16 times wider (the same samples per turn), so that the
+    modulation faster than the coarse pixels is averaged out and the map's peak is as
+    broad as a pixel, not narrower (a narrow peak falls between pixel centres)."""
+    n = max(fine.n_bins // 16, 8)
+    return TimeBinning(n, "average", max(fine.n_bins * fine.n_sub // n, 1))
+
+
+def _background_rates(background: Background, counts: BurstCounts) -> np.ndarray:
+    widths = np.diff(counts.edges)
+    return background.counts(counts.edges) / widths[None, :]
+
+
 def localise_burst(
-    counts: BurstCounts,
-    background_rate: np.ndarray,
-    weight: Any = None,
+    events: EventList,
+    window: Any,
+    background: Background,
+    light_curve: BurstLightCurve | None = None,
     *,
     energy: Any,
     model: Any = "exact",
+    attitude: Any = None,
     radius: Any = 80.0,
     nside: int | None = None,
+    time_bins: TimeBinning | None = None,
     n_refine: int = 3,
     systematic: Any = 0.0,
     progress: ProgressArg = None,
+    cache: dict[Any, ResponseOperator] | None = None,
 ) -> BurstPosition:
-    """Localise a burst in ``counts``: coarse TS map, continuous refit, region.
+    """Localise a burst: coarse TS map of the visible sky, continuous refit, region.
 
     Parameters
     ----------
-    counts : BurstCounts
-        :func:`bin_events` of a window holding the burst.
-    background_rate : ndarray, shape (n_det, n_time)
-        The background rate (1/s) fitted outside the burst: the template whose level per
-        detector is fitted with the burst.
-    weight : array_like, shape (n_time,), optional
-        The burst's light curve in the bins (default constant over the window).
+    events : EventList
+    window : (float, float)
+        The time window of the fit (s): the burst with some background around it.
+    background : Background
+        The background fitted outside the burst (:func:`rotmod.bursts.fit_background`):
+        its rate in each bin is the template whose level per detector is fitted with the
+        burst.
+    light_curve : BurstLightCurve, optional
+        The burst's light curve (:func:`rotmod.bursts.burst_light_curve`), whose shape
+        weights the response bin by bin; ``None``: a constant source over the window (the
+        light curve ignored).
     energy : float or Quantity
         Energy of the response (keV).
     model : str or ProfileModel
         Profile model of the response.
+    attitude : Attitude or AttitudeTable, optional
+        Default the events' attitude.
     radius : float or Quantity
         Radius of the searched cone around the pointing (deg), < 90.
     nside : int, optional
         HEALPix ``nside`` of the coarse map (default: pixels about ``b / L``).
+    time_bins : TimeBinning, optional
+        Mask-angle bins of the fine fit (default :func:`default_time_bins`); the coarse map
+        uses :func:`coarse_time_bins` of them.
     n_refine : int
         Local maxima of the coarse map refitted continuously, >= 1.
     systematic : float or Quantity
         Systematic error per axis added to the region (deg if plain), >= 0.
     progress : bool or callable, optional
         Progress over the coarse map's pixels.
+    cache : dict, optional
+        Folded responses computed before, by attitude (:func:`burst_response`).
     """
+    if not isinstance(events, EventList):
+        raise ParameterError(f"events must be an EventList, got {type(events)}")
+    if not isinstance(background, Background):
+        raise ParameterError(f"background must be a Background (fit_background), got "
+                             f"{type(background)}")
+    if light_curve is not None and not isinstance(light_curve, BurstLightCurve):
+        raise ParameterError(f"light_curve must be a BurstLightCurve or None, got "
+                             f"{type(light_curve)}")
+    try:
+        t0, t1 = (float(v) for v in window)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"window must be a pair (start, stop) in s, got {window!r}") \
+            from exc
     n_refine = as_int(n_refine, "n_refine", 1)
-    rad = np.degrees(as_angle_scalar(radius, "radius", lo=0.0, hi=90.0, lo_open=True,
-                                     hi_open=True))
-    first = counts.attitudes[int(counts.segment[0])]
-    side = (coarse_nside(geometric_scale(counts.events.instrument)) if nside is None
+    rad = float(np.degrees(as_angle_scalar(radius, "radius", lo=0.0, hi=90.0, lo_open=True,
+                                           hi_open=True)))
+    inst = events.instrument
+    fine_bins = default_time_bins(inst, rad) if time_bins is None else \
+        TimeBinning.coerce(time_bins)
+    side = (coarse_nside(geometric_scale(inst)) if nside is None
             else as_int(nside, "nside", 1))
+    cache = {} if cache is None else cache
 
-    def grid_for(att: Attitude) -> HealpixGrid:
+    def weights(c: BurstCounts) -> np.ndarray | None:
+        return None if light_curve is None else light_curve.shape(c.edges)
+
+    # 1. Coarse: a TS map of the cone, in wide mask-angle bins.
+    coarse = bin_events(events, t0, t1, time_bins=coarse_time_bins(fine_bins),
+                        attitude=attitude)
+    first = coarse.attitudes[int(coarse.segment[0])]
+
+    def cone(att: Attitude) -> HealpixGrid:
         return HealpixGrid(side, first.ra, first.dec, rad, att)
 
-    response = burst_response(counts, grid_for, energy=energy, model=model, weight=weight)
-    data = counts.data(background_rate)
-    fitter = SourceFitter(response, data)
-    coarse = ts_map(response, data, limits=False, fitter=fitter, progress=progress)
-    best: FitResult | None = None
-    for pixel in _local_maxima(coarse, response.grid, n_refine):
-        start = PointSource(pixel_position(response, pixel), free_position=True)
-        res = fit(response, data, SkyModel((start,)), errors=False)
-        if best is None or res.loglike > best.loglike:
-            best = res
-    if best is None:
+    response = burst_response(coarse, cone, energy=energy, model=model,
+                              weight=weights(coarse), cache=cache)
+    data = coarse.data(_background_rates(background, coarse))
+    tsm = ts_map(response, data, limits=False, progress=progress)
+    starts = [pixel_position(response, p) for p in _local_maxima(tsm, response.grid, n_refine)]
+    if not starts:
         raise ParameterError("the coarse map has no finite TS: no counts above background")
-    from_fit = fit_with(fitter, best.model, errors=True)
-    region = localise(fitter, from_fit.model, 0, systematic=systematic)
-    pos = from_fit.model.sources[0].position
+    # 2. Fine: continuous fits from the best local maxima, in the fine bins.
+    fine = bin_events(events, t0, t1, time_bins=fine_bins, attitude=attitude)
+
+    def pointing(att: Attitude) -> PositionList:
+        return PositionList.from_coords(first.pointing, att)
+
+    fine_response = burst_response(fine, pointing, energy=energy, model=model,
+                                   weight=weights(fine), cache=cache)
+    fine_data = fine.data(_background_rates(background, fine))
+    fitter = SourceFitter(fine_response, fine_data)
+    best: SkyModel | None = None
+    best_ll = -np.inf
+    null = null_state(fitter, SkyModel())
+    pixel = np.radians(58.6 / side)
+    modes: list[tuple[SkyModel, float]] = []
+    for start in starts:
+        # The fine likelihood has fringes (one mask period of shadow shift, ~p cos^2(theta)
+        # / L apart) finer than the coarse pixels: scan the pixel's neighbourhood on a grid
+        # finer than them, then climb from the best point.
+        start = _best_near(fitter, null, PointSource(start), 1.5 * pixel, 13)
+        m = fitter.maximise(SkyModel((dataclasses.replace(start, free_position=True),)))[0]
+        m = fitter.fit_positions(m)
+        ll = fitter.maximise(m)[1].loglike
+        modes.append((m, ll))
+        if ll > best_ll:
+            best, best_ll = m, ll
+    result = fit_with(fitter, best, errors=True)
+    # Other modes (e.g. the mirror image through the axis of a symmetric array): their TS
+    # below the best, at least a pixel and a half away.
+    others = tuple(sorted(
+        ((m.sources[0].position, 2.0 * (best_ll - ll)) for m, ll in modes
+         if m.sources[0].separation(best.sources[0]) > np.degrees(1.5 * pixel)),
+        key=lambda pair: pair[1]))
+    # 3. The region: the likelihood surface around the best fit.
+    region = localise(fitter, result.model, 0, systematic=systematic)
+    pos = result.model.sources[0].position
     th, ph = first.to_instrument(pos)
     return BurstPosition(pos, float(th.to_value(u.deg)), float(ph.to_value(u.deg)), region,
-                         from_fit, coarse, response)
+                         result, tsm, fine_response, fine, others)

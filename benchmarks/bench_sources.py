@@ -94,8 +94,8 @@ def main() -> None:
                            args.repeat)
         state = null_state(fitter, None)
         t_only = median_time(lambda r=resp, f=fitter, s=state: scan_test_source(
-            f, s, r.matrix, 0.0, 0.0), args.repeat)
-        ours = scan_test_source(fitter, state, resp.matrix, 0.0, 0.0)[:, 0]
+            f, s, f.on_bins(r.matrix), 0.0, 0.0), args.repeat)
+        ours = scan_test_source(fitter, state, fitter.on_bins(resp.matrix), 0.0, 0.0)[:, 0]
         null_ll = fitter.maximise(SkyModel())[1].loglike
         pixels = rng.choice(grid.size, size=min(args.naive, grid.size), replace=False)
         pixels[0] = int(np.argmax(ours))

@@ -274,7 +274,8 @@ class Setup:
 
     def sensitivity(self, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
         cols = columns_at(self.response, (theta, phi))
-        return scan_test_source(self.asimov_null, self.asimov_state, cols, Q_UL, 25.0)[:, 4]
+        return scan_test_source(self.asimov_null, self.asimov_state,
+                                self.asimov_null.on_bins(cols), Q_UL, 25.0)[:, 4]
 
     def asimov_ts(self, model: SkyModel) -> float:
         """Median TS of ``model``'s source: its Asimov data at the true position."""
@@ -282,12 +283,12 @@ class Setup:
         f = SourceFitter(r, PoissonData(model.expected_counts(r, EXPOSURE), self.exposure))
         th, ph = model.sources[0].position
         cols = columns_at(r, (np.array([th]), np.array([ph])))
-        return float(scan_test_source(f, null_state(f, None), cols, 0.0, 0.0)[0, 0])
+        return float(scan_test_source(f, null_state(f, None), f.on_bins(cols), 0.0, 0.0)[0, 0])
 
     def ts_map(self, fitter: SourceFitter) -> np.ndarray:
         """TS only (no limits) of a test source at every pixel against the background."""
-        return scan_test_source(fitter, null_state(fitter, None), self.all_columns,
-                                0.0, 0.0)[:, 0]
+        return scan_test_source(fitter, null_state(fitter, None),
+                                fitter.on_bins(self.all_columns), 0.0, 0.0)[:, 0]
 
 
 def random_positions(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -317,7 +318,7 @@ def part_null(s: Setup, counts: tuple[int, int]) -> dict:
     for i in range(n):
         data = s.simulate(s.null, rng_for(1, i))
         f = SourceFitter(s.response, data)
-        ts[i] = scan_test_source(f, null_state(f, None), cols, 0.0, 0.0)[0, 0]
+        ts[i] = scan_test_source(f, null_state(f, None), f.on_bins(cols), 0.0, 0.0)[0, 0]
         if i < n_check:
             ts_fit[i] = fit(s.response, data, SkyModel([PointSource(FIXED_POSITION)])).ts[0]
         progress("null", i, n, t0, max(n // 10, 1))
@@ -360,7 +361,8 @@ def analyse(s: Setup, data, truth: PointSource, shift: np.ndarray | None = None)
     src = res.model.sources[0]
     # TS at the true position against the same null: 2 delta ln L of the truth (Wilks).
     cols = columns_at(r, (np.array([truth.position[0]]), np.array([truth.position[1]])))
-    ts_truth = float(scan_test_source(fitter, null_state(fitter, None), cols, 0.0, 0.0)[0, 0])
+    ts_truth = float(scan_test_source(fitter, null_state(fitter, None), fitter.on_bins(cols),
+                                      0.0, 0.0)[0, 0])
     t_fit = time.perf_counter() - t
     t = time.perf_counter()
     reg = localise(fitter, res.model, 0)
@@ -437,7 +439,8 @@ def part_ul(s: Setup, counts: tuple[int, int]) -> dict:
         data = s.simulate(model, rng_for(4, i))
         f = SourceFitter(s.response, data)
         ts[i], f_hat[i], _, ul[i], _ = scan_test_source(f, null_state(f, None),
-                                                        cols[:, :, i:i + 1], Q_UL, 0.0)[0]
+                                                        f.on_bins(cols[:, :, i:i + 1]),
+                                                        Q_UL, 0.0)[0]
         ts_asimov[i] = s.asimov_ts(model) if flux[i] > 0 else 0.0
         if i < n_check:
             ul_fit[i] = fit(s.response, data, SkyModel([PointSource(truth.position)]),

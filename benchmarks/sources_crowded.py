@@ -136,7 +136,7 @@ def fluxes_for_snr(response, theta: np.ndarray, phi: np.ndarray, snr: np.ndarray
     cols = columns_at(response, (theta, phi))
     out = np.empty(snr.size)
     for k in range(snr.size):
-        out[k] = scan_test_source(fitter, state, cols[:, :, k:k + 1], 2.706,
+        out[k] = scan_test_source(fitter, state, fitter.on_bins(cols[:, :, k:k + 1]), 2.706,
                                   float(snr[k] ** 2))[0, 4]
     return out
 
@@ -374,7 +374,7 @@ def speed(response, data, args) -> dict:
     for n0 in range(0, response.n_sky, 4096):
         n1 = min(n0 + 4096, response.n_sky)
         ts_only = np.concatenate([ts_only, scan_test_source(
-            fitter, state, response.block(n=(n0, n1)), 0.0, 0.0)[:, 0]])
+            fitter, state, fitter.on_bins(response.block(n=(n0, n1))), 0.0, 0.0)[:, 0]])
     t_ts = time.perf_counter() - t0
     # The naive way: timed on a uniform random subset of the pixels the data see (scaled by
     # the pixel count), its TS checked there and on the brightest pixels (the hard fits).

@@ -62,7 +62,8 @@ def test_null_ts_at_a_fixed_position_is_half_chi2_0_half_chi2_1(field):
     ts = []
     for _ in range(400):
         fitter = SourceFitter(field, null.simulate(field, 500.0, seed=rng))
-        ts.append(scan_test_source(fitter, null_state(fitter, None), column, 0.0, 0.0)[0, 0])
+        ts.append(scan_test_source(fitter, null_state(fitter, None), fitter.on_bins(column),
+                                   0.0, 0.0)[0, 0])
     ts = np.array(ts)
     zero = np.mean(ts < 1e-9)
     # 400 draws: the fraction at 0 has sd 0.025; 3 sd either side of 1/2.

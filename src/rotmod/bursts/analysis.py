@@ -21,6 +21,7 @@ table row (:meth:`Burst.to_table`) and, through :mod:`rotmod.io`, a FITS product
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,7 +31,7 @@ from astropy.table import Table
 from astropy.time import Time
 
 from rotmod._validate import as_angle_scalar, as_energy_scalar, as_scalar
-from rotmod.bursts.localisation import BurstPosition, localise_burst
+from rotmod.bursts.localisation import MAX_ATTITUDE_STEP, BurstPosition, localise_burst
 from rotmod.bursts.measure import (
     Background,
     BurstLightCurve,
@@ -51,6 +52,12 @@ __all__ = ["Burst", "analyse_burst"]
 #: and the burst (a tail below the blocks' threshold stays out of the background).
 BACKGROUND_SPAN = 100.0
 BACKGROUND_GAP = 10.0
+#: Background (s) kept on each side of the burst in the fit window, at least: the burst's
+#: own length if longer.
+WINDOW_MARGIN = 5.0
+#: How far (s) beyond the trigger the first pass looks for more of the burst: a burst of
+#: several pulses triggers on one of them.
+REACH = 30.0
 
 
 @dataclass(frozen=True)
@@ -154,8 +161,9 @@ class Burst:
         t["photon_flux_err"] = [self.photon_flux_err] * u.Unit("cm-2 s-1")
         t["fluence"] = [self.fluence] * u.Unit("cm-2")
         t["fluence_err"] = [self.fluence_err] * u.Unit("cm-2")
-        t.meta.update({"energy": self.energy, "mjdref": self.mjdref,
-                       "systematic": p.region.systematic})
+        # FITS keywords: the response's energy, the time zero, the systematic of the region.
+        t.meta.update({"ENERGY": self.energy, "MJDREF": self.mjdref,
+                       "SYSERR": p.region.systematic})
         return t
 
 
@@ -170,6 +178,40 @@ def _interval(interval: Any) -> tuple[float, float]:
     if not t1 > t0:
         raise ParameterError(f"interval must have stop > start, got {t0:g}..{t1:g} s")
     return t0, t1
+
+
+def _background_and_light_curve(events: EventList, a: float, b: float,
+                                pads: tuple[float, ...], degree: int
+                                ) -> tuple[Background, BurstLightCurve]:
+    """The background fitted on up to :data:`BACKGROUND_SPAN` s each side of ``[a - pad, b +
+    pad]``, and the light curve inside that span (its blocks above the background), for the
+    first of ``pads`` that leaves background within the data."""
+    lo, hi = events.t_start, events.t_stop
+    for pad in pads:
+        sides = [(max(lo, a - pad - BACKGROUND_SPAN), a - pad),
+                 (b + pad, min(hi, b + pad + BACKGROUND_SPAN))]
+        sides = [s for s in sides if s[1] - s[0] >= 1.0]
+        if sides:
+            break
+    else:
+        raise ParameterError(
+            f"interval {a:g}..{b:g} s leaves no background on either side within the data "
+            f"({lo:g}..{hi:g} s): at least 1 s is needed {pad:g} s before or after it")
+    bkg = fit_background(events, sides, degree=degree)
+    lc = burst_light_curve(events, (max(lo, a - pad + 1.0), min(hi, b + pad - 1.0)), bkg)
+    if not np.all(np.isfinite(lc.interval)):
+        raise ParameterError(f"no block of the light curve in {a:g}..{b:g} s is above the "
+                             "background: no burst to localise")
+    return bkg, lc
+
+
+def _boxcar(t0: float, t1: float) -> Callable[[np.ndarray], np.ndarray]:
+    """Weights of a constant source over ``[t0, t1]``: each bin's fraction inside it (the
+    light curve ignored, for comparison)."""
+    def weights(edges: np.ndarray) -> np.ndarray:
+        lo, hi = np.maximum(edges[:-1], t0), np.minimum(edges[1:], t1)
+        return np.clip(hi - lo, 0.0, None) / np.diff(edges)
+    return weights
 
 
 def _peak_weight(light_curve: BurstLightCurve, timescale: float) -> float:
@@ -193,6 +235,7 @@ def analyse_burst(
     energy: Any,
     model: Any = "exact",
     attitude: Any = None,
+    max_step: float = MAX_ATTITUDE_STEP,
     radius: Any = 80.0,
     systematic: Any = 0.0,
     light_curve: bool = True,
@@ -217,13 +260,15 @@ def analyse_burst(
         Profile model of the response.
     attitude : Attitude or AttitudeTable, optional
         Default the events' attitude.
+    max_step : float
+        Longest attitude segment (s) of a table, > 0.
     radius : float or Quantity
         Searched cone around the pointing (deg), < 90.
     systematic : float or Quantity
         Systematic error per axis of the position (deg if plain), >= 0.
     light_curve : bool
         Weight the response with the burst's light curve (``False``: a constant source over
-        the burst, for comparison).
+        the burst's extent, for comparison).
     background_degree : int
         Degree of the background polynomials, >= 0.
     nside : int, optional
@@ -253,31 +298,29 @@ def analyse_burst(
         raise ParameterError(f"interval {a:g}..{b:g} s lies outside the data ({lo:g}..{hi:g} s)")
     update, close = progress_callbacks(progress, 5, "burst", "step")
     try:
-        # The background on each side, away from the trigger by the gap and the trigger's
-        # own length (a burst's start and tail reach beyond the triggering window).
+        # Two passes.  First the background on each side, away from the trigger by the gap,
+        # its length and REACH (later pulses of a burst that triggered on one; without REACH
+        # where the data are too short), and the light curve in between; then both again
+        # around the burst's extent so found.
         pad = BACKGROUND_GAP + (b - a)
-        sides = [(max(lo, a - pad - BACKGROUND_SPAN), a - pad),
-                 (b + pad, min(hi, b + pad + BACKGROUND_SPAN))]
-        sides = [s for s in sides if s[1] - s[0] >= 1.0]
-        if not sides:
-            raise ParameterError(
-                f"interval {a:g}..{b:g} s leaves no background on either side within the data "
-                f"({lo:g}..{hi:g} s): at least 1 s is needed before or after it")
-        bkg = fit_background(events, sides, degree=background_degree)
+        bkg, lc = _background_and_light_curve(events, a, b, (pad + REACH, pad),
+                                              background_degree)
         update(1, 5)
-        search_span = (max(lo, a - pad + 1.0), min(hi, b + pad - 1.0))
-        lc = burst_light_curve(events, search_span, bkg)
-        if not np.all(np.isfinite(lc.interval)):
-            raise ParameterError(f"no block of the light curve in {a:g}..{b:g} s is above the "
-                                 "background: no burst to localise")
+        bkg, lc = _background_and_light_curve(events, *lc.interval, (BACKGROUND_GAP,),
+                                              background_degree)
         s0, s1 = lc.interval
         update(2, 5)
-        margin = max(2.0, 0.5 * (s1 - s0))
+        # The window of the durations and the position fit: the burst with background on
+        # both sides, which pins each detector's background level (free in the fit) where
+        # the burst is not, so that the burst's TS counts its whole excess, not only its
+        # modulation.
+        margin = max(WINDOW_MARGIN, s1 - s0)
         window = (max(lo, s0 - margin), min(hi, s1 + margin))
         dur = durations(events, window, bkg)
         update(3, 5)
-        pos = localise_burst(events, (s0, s1), bkg, lc if light_curve else None,
-                             energy=e_kev, model=model, attitude=attitude, radius=radius,
+        pos = localise_burst(events, window, bkg, lc if light_curve else _boxcar(s0, s1),
+                             energy=e_kev, model=model, attitude=attitude,
+                             max_step=max_step, radius=radius,
                              nside=nside, systematic=systematic, cache=cache)
         update(4, 5)
     finally:
@@ -289,8 +332,7 @@ def analyse_burst(
     lower, upper = pos.fit.flux_err[0]
     flux_err = 0.5 * (lower + upper) / area
     c = pos.counts
-    w = pos.response.weight if light_curve else np.where(
-        (c.centres >= s0) & (c.centres < s1), 1.0, 0.0)
+    w = pos.response.weight
     exposure_weight = float(np.sum(w * c.exposure))
     peak = _peak_weight(lc, dur.peak_timescale) if light_curve else 1.0
     return Burst((float(s0), float(s1)), window, bkg, lc, dur, pos, e_kev, flux * peak,

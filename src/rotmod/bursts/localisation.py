@@ -13,11 +13,15 @@ burst is fitted with the burst, as in the source fits).  The response is an
 :class:`~rotmod.response.UnfoldedResponse`, so the source layer does the rest:
 
 1. **coarse**: a TS map (:func:`rotmod.sources.ts_map`) on a HEALPix cone over the visible
-   sky, with pixels about the instrument's scale ``b / L``;
-2. **fine**: the best few local maxima refitted with a continuous position
-   (:func:`rotmod.sources.fit`), the highest likelihood kept;
+   sky, with pixels about the instrument's scale ``b / L``, in wide mask-angle bins;
+2. **fine**: the neighbourhoods of the best local maxima scanned in narrower bins, then in
+   the fine bins (which resolve the modulation at the candidates' off-axis angles), and
+   the best peaks refitted with a continuous position; the highest likelihood is kept and
+   the others are reported as alternatives;
 3. **region**: :func:`rotmod.sources.localise` -- the likelihood surface, with a settable
    systematic term, its 68 % and 90 % contours and a HEALPix probability map.
+
+``docs/bursts.md`` derives the bin widths and says why each stage is there.
 """
 
 from __future__ import annotations
@@ -47,15 +51,26 @@ from rotmod.sky.healpix import HealpixGrid
 from rotmod.sky.points import PositionList
 from rotmod.sources.detection import pixel_position
 from rotmod.sources.fitting import FitResult, SourceFitter, fit_with, geometric_scale
-from rotmod.sources.localisation import Region, localise, vectors_to_positions
-from rotmod.sources.model import PointSource, SkyModel, tangent_basis
-from rotmod.sources.tsmap import TSMap, null_state, scan_test_source, ts_map
+from rotmod.sources.localisation import Region, localise
+from rotmod.sources.model import PointSource, SkyModel, positions_of
+from rotmod.sources.tsmap import TSMap, ts_map
 
 __all__ = ["BurstCounts", "BurstPosition", "bin_events", "burst_response", "localise_burst"]
 
 #: Attitude segments of at most this many seconds (a balloon's pointing moves by well under
 #: the instrument's scale in that time; a fast slew can pass a shorter step).
 MAX_ATTITUDE_STEP = 10.0
+#: Off-axis margin (deg) beyond the coarse candidates for the fine bins' sampling: the
+#: coarse pixels are ~b/L across, and a fit moves by a few of them at most.
+FINE_MARGIN = 5.0
+#: Mask-angle bins per turn of the coarse map (11 deg each).  With pixels of ~b/L, 32 bins
+#: found the burst's basin at 10-35 deg off axis on the survey instrument where 64 missed
+#: it at 35 deg (its peak narrower than a pixel), in single injections during development;
+#: benchmarks/bursts_calibration.py measures the whole chain.
+COARSE_BINS = 32
+#: Positions passed on from the coarse to the medium bins, and from the medium to the fine.
+MEDIUM_CANDIDATES = 4
+FINE_FITS = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,7 +228,7 @@ class BurstPosition:
         The fitted model (burst flux, background levels) with the burst's TS and flux
         errors.
     coarse : TSMap
-        The TS map of the visible sky the search started from.
+        The TS map of the visible sky the search started from (with the light curve).
     response : UnfoldedResponse
         The response of the fit (its light curve weights).
     counts : BurstCounts
@@ -265,19 +280,27 @@ def _local_maxima(tsm: TSMap, grid: HealpixGrid, n: int) -> list[int]:
     return picked
 
 
-def _best_near(fitter: SourceFitter, null: tuple[np.ndarray, ...], source: PointSource,
-               half: float, n: int) -> PointSource:
-    """The point of highest TS on an ``n x n`` tangent-plane grid of half-width ``half``
-    (rad) around ``source``."""
-    v0 = source.vector()
-    e1, e2 = tangent_basis(v0)
-    o = np.linspace(-half, half, n)
-    xx, yy = np.meshgrid(o, o)
-    v = v0[None, :] + xx.ravel()[:, None] * e1 + yy.ravel()[:, None] * e2
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
-    cols = columns_at(fitter.response, vectors_to_positions(source.frame, v))
-    ts = np.nan_to_num(scan_test_source(fitter, null, cols, 0.0, 0.0)[:, 0], nan=-np.inf)
-    return source.at_vector(v[int(np.argmax(ts))])
+def _light_curve_from(light_curve: BurstLightCurve, counts: BurstCounts,
+                      unit: UnfoldedResponse, source: PointSource) -> np.ndarray:
+    """The light curve's weights in the bins of ``counts``, seen from ``source``.
+
+    Each block's net counts over the counts a unit flux at ``source`` gives in it (the
+    response summed over the detectors, weight 1): the block's flux.  The summed rate of a
+    bright burst carries the mask's modulation of the summed transmission; the blocks'
+    net rates taken as the light curve would put it in the model twice (measured: a burst
+    of sqrt(TS) 136 placed 68 deg away, its TS 1100 above the truth's in the coarse map).
+    """
+    col = columns_at(unit, positions_of([source]))[:, :, 0].sum(axis=0) * counts.exposure
+    edges = light_curve.edges
+    n = light_curve.counts.size
+    inside = (counts.centres >= edges[0]) & (counts.centres < edges[-1])
+    block = np.clip(np.searchsorted(edges, counts.centres, side="right") - 1, 0, n - 1)
+    per_flux = np.bincount(block[inside], weights=col[inside], minlength=n)
+    net = np.where(light_curve.burst,
+                   np.maximum(light_curve.counts - light_curve.background, 0.0), 0.0)
+    flux = np.where(per_flux > 0, net / np.where(per_flux > 0, per_flux, 1.0), 0.0)
+    w = np.where(inside, flux[block], 0.0)
+    return w / w.max() if w.max() > 0 else light_curve.shape(counts.edges)
 
 
 def default_time_bins(instrument: Any, radius_deg: float) -> TimeBinning:
@@ -285,22 +308,25 @@ def default_time_bins(instrument: Any, radius_deg: float) -> TimeBinning:
 
     The slats' shadow moves across a detector at up to ``L tan(theta)`` per radian of
     mask angle, so one period ``p = a + b`` of the mask passes in ``p / (L tan theta)``
-    rad; four samples per period (up to 60 deg off axis, beyond which the effective area
+    rad; eight samples per period (up to 60 deg off axis, beyond which the effective area
     is small) fix the number of samples per turn, taken as bins of two sub-samples each
-    (``"average"`` mode: a bin's response is its mean, as its counts are).
+    (``"average"`` mode: a bin's response is its mean, as its counts are).  With four
+    (bins of half a period) the midpoint rule's error in a bin's mean biased positions by
+    more than their 90 % radius at 25 deg off axis (measured); with eight it did not.
     """
     mask = instrument.mask
     theta = np.radians(min(radius_deg, 60.0))
-    samples = 4.0 * 2.0 * np.pi * mask.height * np.tan(theta) / mask.period
+    samples = 8.0 * 2.0 * np.pi * mask.height * np.tan(theta) / mask.period
     n = int(2 ** np.ceil(np.log2(max(samples, 64.0))))
     return TimeBinning(n // 2, "average", 2)
 
 
 def coarse_time_bins(fine: TimeBinning) -> TimeBinning:
-    """The coarse map's bins: 16 times wider (the same samples per turn), so that the
-    modulation faster than the coarse pixels is averaged out and the map's peak is as
-    broad as a pixel, not narrower (a narrow peak falls between pixel centres)."""
-    n = max(fine.n_bins // 16, 8)
+    """The coarse map's bins: :data:`COARSE_BINS` per turn, each the mean of as many
+    samples as the fine bins take, so that the modulation faster than the coarse pixels is
+    averaged out and the map's peak is as broad as a pixel (a narrow peak falls between
+    pixel centres, and the map then peaks on a sidelobe)."""
+    n = min(COARSE_BINS, fine.n_bins)
     return TimeBinning(n, "average", max(fine.n_bins * fine.n_sub // n, 1))
 
 
@@ -313,15 +339,16 @@ def localise_burst(
     events: EventList,
     window: Any,
     background: Background,
-    light_curve: BurstLightCurve | None = None,
+    light_curve: BurstLightCurve | Callable[[np.ndarray], np.ndarray] | None = None,
     *,
     energy: Any,
     model: Any = "exact",
     attitude: Any = None,
+    max_step: float = MAX_ATTITUDE_STEP,
     radius: Any = 80.0,
     nside: int | None = None,
     time_bins: TimeBinning | None = None,
-    n_refine: int = 3,
+    n_refine: int = 4,
     systematic: Any = 0.0,
     progress: ProgressArg = None,
     cache: dict[Any, ResponseOperator] | None = None,
@@ -337,25 +364,29 @@ def localise_burst(
         The background fitted outside the burst (:func:`rotmod.bursts.fit_background`):
         its rate in each bin is the template whose level per detector is fitted with the
         burst.
-    light_curve : BurstLightCurve, optional
+    light_curve : BurstLightCurve or callable, optional
         The burst's light curve (:func:`rotmod.bursts.burst_light_curve`), whose shape
-        weights the response bin by bin; ``None``: a constant source over the window (the
-        light curve ignored).
+        weights the response bin by bin (or any function of the bins' edges giving their
+        weights); ``None``: a constant source over the window.
     energy : float or Quantity
         Energy of the response (keV).
     model : str or ProfileModel
         Profile model of the response.
     attitude : Attitude or AttitudeTable, optional
         Default the events' attitude.
+    max_step : float
+        Longest attitude segment (s) of a table, > 0.
     radius : float or Quantity
         Radius of the searched cone around the pointing (deg), < 90.
     nside : int, optional
         HEALPix ``nside`` of the coarse map (default: pixels about ``b / L``).
     time_bins : TimeBinning, optional
-        Mask-angle bins of the fine fit (default :func:`default_time_bins`); the coarse map
-        uses :func:`coarse_time_bins` of them.
+        Mask-angle bins of the fine fit (default :func:`default_time_bins` out to the
+        coarse candidates' off-axis angle plus :data:`FINE_MARGIN`); the coarse map uses
+        :func:`coarse_time_bins` of :func:`default_time_bins` at ``radius``.
     n_refine : int
-        Local maxima of the coarse map refitted continuously, >= 1.
+        Local maxima of each coarse map (with the light curve, and with the burst's extent
+        weighted evenly) refined, >= 1.
     systematic : float or Quantity
         Systematic error per axis added to the region (deg if plain), >= 0.
     progress : bool or callable, optional
@@ -368,9 +399,10 @@ def localise_burst(
     if not isinstance(background, Background):
         raise ParameterError(f"background must be a Background (fit_background), got "
                              f"{type(background)}")
-    if light_curve is not None and not isinstance(light_curve, BurstLightCurve):
-        raise ParameterError(f"light_curve must be a BurstLightCurve or None, got "
-                             f"{type(light_curve)}")
+    if light_curve is not None and not (isinstance(light_curve, BurstLightCurve)
+                                        or callable(light_curve)):
+        raise ParameterError(f"light_curve must be a BurstLightCurve (or a function of the "
+                             f"bin edges giving the weights) or None, got {type(light_curve)}")
     try:
         t0, t1 = (float(v) for v in window)
     except (TypeError, ValueError) as exc:
@@ -387,54 +419,102 @@ def localise_burst(
     cache = {} if cache is None else cache
 
     def weights(c: BurstCounts) -> np.ndarray | None:
-        return None if light_curve is None else light_curve.shape(c.edges)
+        if light_curve is None:
+            return None
+        shape = light_curve.shape if isinstance(light_curve, BurstLightCurve) else light_curve
+        return np.asarray(shape(c.edges), dtype=float)
 
     # 1. Coarse: a TS map of the cone, in wide mask-angle bins.
     coarse = bin_events(events, t0, t1, time_bins=coarse_time_bins(fine_bins),
-                        attitude=attitude)
+                        attitude=attitude, max_step=max_step)
     first = coarse.attitudes[int(coarse.segment[0])]
 
     def cone(att: Attitude) -> HealpixGrid:
         return HealpixGrid(side, first.ra, first.dec, rad, att)
 
-    response = burst_response(coarse, cone, energy=energy, model=model,
-                              weight=weights(coarse), cache=cache)
+    # Two coarse maps: with the light curve, and with the burst's extent weighted evenly.
+    # The shape sharpens a map's peak, which can then fall between pixels and leave the map
+    # peaking on a sidelobe (a burst 55 deg off axis was missed with the shape alone, one 18
+    # deg off axis without it), so the local maxima of both are refined.
     data = coarse.data(_background_rates(background, coarse))
-    tsm = ts_map(response, data, limits=False, progress=progress)
-    starts = [pixel_position(response, p) for p in _local_maxima(tsm, response.grid, n_refine)]
+    w = weights(coarse)
+    starts: list[Any] = []
+    tsm: TSMap | None = None
+    for weight in ([w, (w > 0).astype(float)] if w is not None else [None]):
+        response = burst_response(coarse, cone, energy=energy, model=model, weight=weight,
+                                  cache=cache)
+        m = ts_map(response, data, limits=False, progress=progress)
+        tsm = m if tsm is None else tsm
+        for p in _local_maxima(m, response.grid, n_refine):
+            new = PointSource(pixel_position(response, p))
+            if all(new.separation(PointSource(s)) > 2.0 * 58.6 / side for s in starts):
+                starts.append(new.position)
     if not starts:
         raise ParameterError("the coarse map has no finite TS: no counts above background")
-    # 2. Fine: continuous fits from the best local maxima, in the fine bins.
-    fine = bin_events(events, t0, t1, time_bins=fine_bins, attitude=attitude)
+    # 2. Fine: continuous fits in ever finer mask-angle bins, each stage climbing from the
+    # best positions of the one before.  The likelihood in fine bins has fringes (a shadow
+    # shifted by one mask period, ~p cos^2(theta) / L apart) around a core far narrower
+    # than a coarse pixel: a climb there from a pixel away stops on a fringe.  In bins 16x
+    # and 4x wider the core is broader and the fringes washed out, so the coarse and medium
+    # climbs bring the start within reach of the core.  The fine bins resolve the
+    # modulation at the candidates' own off-axis angles (a burst near the axis needs a
+    # fraction of the samples of one at the cone's edge).
+    if time_bins is None:
+        reach = max(float(first.to_instrument(p)[0].to_value(u.deg)) for p in starts)
+        fine_bins = default_time_bins(inst, min(reach + FINE_MARGIN, rad))
+    medium_bins = TimeBinning(max(fine_bins.n_bins // 4, 8), "average",
+                              max(fine_bins.n_bins * fine_bins.n_sub // max(
+                                  fine_bins.n_bins // 4, 8), 1))
 
     def pointing(att: Attitude) -> PositionList:
         return PositionList.from_coords(first.pointing, att)
 
-    fine_response = burst_response(fine, pointing, energy=energy, model=model,
-                                   weight=weights(fine), cache=cache)
-    fine_data = fine.data(_background_rates(background, fine))
-    fitter = SourceFitter(fine_response, fine_data)
-    best: SkyModel | None = None
-    best_ll = -np.inf
-    null = null_state(fitter, SkyModel())
+    def stage(bins: TimeBinning) -> tuple[BurstCounts, UnfoldedResponse, PoissonData]:
+        c = bin_events(events, t0, t1, time_bins=bins, attitude=attitude, max_step=max_step)
+        return c, burst_response(c, pointing, energy=energy, model=model, cache=cache), \
+            c.data(_background_rates(background, c))
+
+    def fitter_at(c: BurstCounts, unit: UnfoldedResponse, data: PoissonData,
+                  src: PointSource) -> SourceFitter:
+        """The fitter of a candidate position, with the light curve seen from there."""
+        return SourceFitter(unit.with_weight(_light_curve_from(light_curve, c, unit, src)
+                                             if isinstance(light_curve, BurstLightCurve)
+                                             else weights(c)), data)
+
+    coarse_unit = burst_response(coarse, cone, energy=energy, model=model, cache=cache)
+    stages = [(coarse, coarse_unit, data), stage(medium_bins), stage(fine_bins)]
     pixel = np.radians(58.6 / side)
-    modes: list[tuple[SkyModel, float]] = []
-    for start in starts:
-        # The fine likelihood has fringes (one mask period of shadow shift, ~p cos^2(theta)
-        # / L apart) finer than the coarse pixels: scan the pixel's neighbourhood on a grid
-        # finer than them, then climb from the best point.
-        start = _best_near(fitter, null, PointSource(start), 1.5 * pixel, 13)
-        m = fitter.maximise(SkyModel((dataclasses.replace(start, free_position=True),)))[0]
-        m = fitter.fit_positions(m)
-        ll = fitter.maximise(m)[1].loglike
-        modes.append((m, ll))
-        if ll > best_ll:
-            best, best_ll = m, ll
+
+    def climb(c: BurstCounts, unit: UnfoldedResponse, d: PoissonData, src: PointSource,
+              step: float) -> tuple[SkyModel, float, SourceFitter]:
+        f = fitter_at(c, unit, d, src)
+        m = f.maximise(SkyModel((dataclasses.replace(src, free_position=True),)))[0]
+        m = f.fit_positions(m, scale=step)
+        return m, f.maximise(m)[1].loglike, f
+
+    def best_of(fits: list[tuple[SkyModel, float, SourceFitter]], n: int
+                ) -> list[PointSource]:
+        """The ``n`` most likely distinct positions (a pixel apart at least)."""
+        out: list[PointSource] = []
+        for m, _, _ in sorted(fits, key=lambda fit: -fit[1]):
+            src = m.sources[0]
+            if all(src.separation(o) > np.degrees(pixel) for o in out):
+                out.append(src)
+        return out[:n]
+
+    # Each stage climbs (Nelder-Mead) from the last one's best positions on its own
+    # likelihood, smooth enough at its bin width for a climb from a pixel away to reach the
+    # right peak, and passes on fewer of them.
+    fits = [climb(*stages[0], PointSource(p), 0.5 * pixel) for p in starts]
+    fits = [climb(*stages[1], src, 0.25 * pixel) for src in best_of(fits, MEDIUM_CANDIDATES)]
+    modes = [climb(*stages[2], src, 0.125 * pixel) for src in best_of(fits, FINE_FITS)]
+    best, best_ll, fitter = max(modes, key=lambda fit: fit[1])
+    fine = stages[2][0]
     result = fit_with(fitter, best, errors=True)
     # Other modes (e.g. the mirror image through the axis of a symmetric array): their TS
     # below the best, at least a pixel and a half away.
     others = tuple(sorted(
-        ((m.sources[0].position, 2.0 * (best_ll - ll)) for m, ll in modes
+        ((m.sources[0].position, 2.0 * (best_ll - ll)) for m, ll, _ in modes
          if m.sources[0].separation(best.sources[0]) > np.degrees(1.5 * pixel)),
         key=lambda pair: pair[1]))
     # 3. The region: the likelihood surface around the best fit.
@@ -442,4 +522,4 @@ def localise_burst(
     pos = result.model.sources[0].position
     th, ph = first.to_instrument(pos)
     return BurstPosition(pos, float(th.to_value(u.deg)), float(ph.to_value(u.deg)), region,
-                         result, tsm, fine_response, fine, others)
+                         result, tsm, fitter.response, fine, others)

@@ -9,6 +9,7 @@
     rotmod reconstruct folded profiles + response -> FITS image + plot
     rotmod detect      the sources in the data -> catalogue, TS map, regions
     rotmod lightcurve  fluxes of catalogued sources per time interval -> table + plot
+    rotmod burst       bursts in an event list -> positions, regions, durations, summaries
     rotmod design      mask design trade-off (Pareto front)
     rotmod reproduce   regenerate the seed paper's results with an HTML report
 
@@ -54,6 +55,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "detect": ("_detect", "find the sources in the data -> catalogue, TS map, regions"),
     "lightcurve": ("_lightcurve",
                    "fluxes of catalogued sources per time interval -> table + plot"),
+    "burst": ("_burst", "find, localise and measure bursts -> summaries, regions, maps"),
     "design": ("_design", "mask design trade-off (Pareto front)"),
     "reproduce": ("_reproduce", "regenerate the seed paper's results with an HTML report"),
 }

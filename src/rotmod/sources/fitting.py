@@ -26,15 +26,18 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import sparse
 from scipy.optimize import brentq, minimize
 from scipy.stats import chi2 as chi2_dist
 
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument
 from rotmod.reconstruction.data import PoissonData, as_data
+from rotmod.response.columns import columns_at
 from rotmod.response.operator import ResponseOperator
+from rotmod.response.unfolded import UnfoldedResponse
 from rotmod.sources.likelihood import Groups, LinearPoissonFit, log_likelihood, maximise
-from rotmod.sources.model import PointSource, SkyModel, tangent_basis
+from rotmod.sources.model import PointSource, SkyModel, positions_of, tangent_basis
 
 __all__ = ["FitBins", "FitResult", "SourceFitter", "fit", "fit_with"]
 
@@ -141,6 +144,30 @@ class FitBins:
         sums = np.where(mask, v, 0.0).sum(axis=1)[self.merged]
         return np.concatenate([v[self.counted], sums])
 
+    def unfolded_maps(self, response: UnfoldedResponse, exposure: np.ndarray
+                      ) -> list[sparse.csr_matrix]:
+        """Per part of an unfolded response, the sparse map from its folded columns
+        (flattened ``(n_det * n_phase, k)``) to the exposure-weighted columns on the fit
+        bins: a fit bin's value is a sum of ``E_k w_k P[d, t(k)]`` over the time bins it
+        holds, so the unfolded ``(n_det, n_time, k)`` columns are never formed (their size
+        grows with the window; the maps' work with the number of bins once)."""
+        n_det, n_t = self.counted.shape
+        n_phase = response.parts[0].n_time
+        row = np.full((n_det, n_t), -1, dtype=np.int64)
+        n_counted = int(np.count_nonzero(self.counted))
+        row[self.counted] = np.arange(n_counted)
+        slot = np.full(n_det, -1, dtype=np.int64)
+        slot[self.merged] = n_counted + np.arange(self.merged.size)
+        row = np.where(self.empty, slot[:, None], row)
+        col = np.arange(n_det)[:, None] * n_phase + response.phase[None, :]
+        val = exposure * response.weight[None, :]
+        maps = []
+        for j in range(len(response.parts)):
+            sel = (row >= 0) & (response.segment == j)[None, :]
+            maps.append(sparse.csr_matrix((val[sel], (row[sel], np.broadcast_to(
+                col, row.shape)[sel])), shape=(self.detector.size, n_det * n_phase)))
+        return maps
+
     def detector_sums(self, v: np.ndarray) -> np.ndarray:
         """Per-detector sums of values on the fit bins ``(n_fit,)``."""
         return np.bincount(self.detector, weights=v, minlength=self.counted.shape[0])
@@ -179,6 +206,37 @@ class SourceFitter:
         self.m_fixed = self.bins(self.exposure * self.data.background) if known else None
         self.fit_background = not known
         self.columns: dict[Any, np.ndarray] = {}
+        self._unfolded = (self.bins.unfolded_maps(response, self.exposure)
+                          if isinstance(response, UnfoldedResponse) else None)
+
+    def columns_on_bins(self, positions: Any) -> np.ndarray:
+        """Exposure-weighted response columns ``(n_fit, k)`` at ``positions`` on the fit
+        bins (:class:`FitBins`): what the likelihood of a source there is made of."""
+        if self._unfolded is None:
+            return self.on_bins(columns_at(self.response, positions))
+        return sum(m @ columns_at(part, positions).reshape(m.shape[1], -1)
+                   for m, part in zip(self._unfolded, self.response.parts, strict=True))
+
+    def on_bins(self, columns: np.ndarray) -> np.ndarray:
+        """Response columns ``(n_det, n_time, k)`` times the exposure, on the fit bins:
+        ``(n_fit, k)``."""
+        return self.bins(self.exposure[:, :, None] * columns)
+
+    def source_bins(self, model: SkyModel) -> np.ndarray:
+        """:meth:`columns_on_bins` of ``model``'s sources, cached by position."""
+        out = np.empty((self.y.size, len(model.sources)))
+        todo = []
+        for k, src in enumerate(model.sources):
+            key = (src.frame, *np.round(src.vector(), 15))
+            if key in self.columns:
+                out[:, k] = self.columns[key]
+            else:
+                todo.append((k, key))
+        if todo:
+            cols = self.columns_on_bins(positions_of([model.sources[k] for k, _ in todo]))
+            for j, (k, key) in enumerate(todo):
+                out[:, k] = self.columns[key] = cols[:, j]
+        return out
 
     # -- the linear problem of a model --------------------------------------------------
 
@@ -208,8 +266,8 @@ class SourceFitter:
             pick, rows = self.bins, self.bins.detector
         cols, x, free = [], [], []
         if model.sources:
-            c = model.source_columns(self.response, self.columns)
-            cols.append(pick(self.exposure[:, :, None] * c))
+            cols.append(pick(self.exposure[:, :, None] * model.source_columns(self.response))
+                        if full else self.source_bins(model))
             x += [s.flux for s in model.sources]
             free += [s.free_flux for s in model.sources]
         if model.diffuse is not None:

@@ -21,6 +21,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 from astropy.coordinates import SkyCoord
 from scipy.interpolate import RegularGridInterpolator
@@ -29,7 +30,6 @@ from scipy.ndimage import gaussian_filter
 from rotmod._validate import as_angle_scalar
 from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
-from rotmod.response.columns import columns_at
 from rotmod.sources.fitting import SourceFitter, geometric_scale
 from rotmod.sources.model import PointSource, SkyModel, tangent_basis
 from rotmod.sources.tsmap import null_state, scan_test_source
@@ -45,6 +45,10 @@ N_SIDE = 41
 #: equal-area (pixel areas within 6 %), and a source too faint to be localised within it is
 #: reported as such (``Region.closed`` False), not given an ever larger square.
 MAX_HALF = np.radians(20.0)
+#: Off-axis angle (deg) beyond which a square's points are not evaluated: a response is
+#: defined in front of the detectors only (theta < 90 deg), and a drift's other attitudes
+#: may turn a point a little further.
+HORIZON = 89.0
 
 
 def vectors_to_positions(frame: str, v: np.ndarray) -> Any:
@@ -183,19 +187,35 @@ class Region:
         return vectors_to_positions(self.source.frame, v), self.density.ravel()
 
 
-def _surface(fitter: SourceFitter, null: SkyModel, source: PointSource, half: float,
-             n: int) -> tuple[np.ndarray, np.ndarray]:
-    """TS of a test source on the ``n x n`` square of half-width ``half`` (rad)."""
+def scan_square(fitter: SourceFitter, state: tuple[np.ndarray, ...], source: PointSource,
+                half: float, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """TS of a test source on the ``n x n`` tangent-plane square of half-width ``half``
+    (rad) around ``source``, against the null ``state`` (:func:`null_state`).
+
+    Returns ``(offsets, ts, vectors)``: the square's ``n`` offsets (rad), its TS ``(n, n)``
+    (``-inf`` at points below the instrument's horizon, where no source can be) and the
+    points' unit vectors ``(n * n, 3)``.
+    """
     v0 = source.vector()
     e1, e2 = tangent_basis(v0)
     o = np.linspace(-half, half, n)
     xx, yy = np.meshgrid(o, o)
     v = v0[None, :] + xx.ravel()[:, None] * e1 + yy.ravel()[:, None] * e2
     v /= np.linalg.norm(v, axis=1, keepdims=True)
-    cols = columns_at(fitter.response, vectors_to_positions(source.frame, v))
-    # Only the TS is read: no upper limits or sensitivities (most of a scan's cost).
-    out = scan_test_source(fitter, null_state(fitter, null), cols, 0.0, 0.0)
-    return o, np.nan_to_num(out[:, 0], nan=0.0).reshape(n, n)
+    if source.frame == "celestial":
+        theta = fitter.response.grid.attitude.to_instrument(
+            vectors_to_positions("celestial", v))[0].to_value(u.deg)
+    else:
+        theta = np.degrees(np.arccos(np.clip(v[:, 2], -1.0, 1.0)))
+    seen = theta < HORIZON
+    ts = np.full(v.shape[0], -np.inf)
+    if seen.any():
+        cols = fitter.columns_on_bins(vectors_to_positions(source.frame, v[seen]))
+        # Only the TS is read: no upper limits or sensitivities (most of a scan's cost).
+        ts[seen] = np.nan_to_num(scan_test_source(fitter, state, cols, 0.0, 0.0)[:, 0],
+                                 nan=0.0)
+    return o, ts.reshape(n, n), v
+
 
 def localise(
     fitter: SourceFitter,
@@ -242,7 +262,7 @@ def localise(
     half = 4.0 * geometric_scale(fitter.response) / np.sqrt(ts_k) + 4.0 * sys_rad
     half = min(half, MAX_HALF)
     for _ in range(12):
-        o, ts = _surface(fitter, null, source, half, n_side)
+        o, ts, _ = scan_square(fitter, null_state(fitter, null), source, half, n_side)
         drop = ts.max() - ts
         edge = np.concatenate([drop[0], drop[-1], drop[:, 0], drop[:, -1]])
         closed = bool(edge.min() >= EDGE_DROP)

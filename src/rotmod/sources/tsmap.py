@@ -308,13 +308,21 @@ def scan_test_source(fitter: SourceFitter, state: tuple[np.ndarray, ...], column
     fitter : SourceFitter
     state : tuple
         :func:`null_state` of the null model.
-    columns : ndarray, shape (n_det, n_time, k)
-        Response columns of the test positions.
+    columns : ndarray, shape (n_fit, k)
+        Exposure-weighted columns of the test positions on the fit bins
+        (:meth:`SourceFitter.columns_on_bins`).
     q_ul, q_sens : float
         ``2 delta ln L`` of the upper limit and TS of the sensitivity (<= 0: skipped).
     """
-    return _scan_block(columns, None, fitter.exposure, fitter.bins, fitter.y, *state,
-                       q_ul, q_sens)
+    return _scan_bins(columns, fitter.y, *state, q_ul, q_sens)
+
+
+def _scan_bins(ec: np.ndarray, y: np.ndarray, m_rest: np.ndarray, det: np.ndarray,
+               tb: np.ndarray, b0: np.ndarray, q_ul: float, q_sens: float) -> np.ndarray:
+    out = np.empty((ec.shape[1], 5))
+    _ts_pixels(np.ascontiguousarray(ec.T, dtype=np.float64), y, m_rest, det, tb,
+               np.array(b0, dtype=float), float(q_ul), float(q_sens), out)
+    return out
 
 
 def _scan_block(columns: np.ndarray, _block: Any, exposure: np.ndarray, bins: FitBins,
@@ -322,11 +330,8 @@ def _scan_block(columns: np.ndarray, _block: Any, exposure: np.ndarray, bins: Fi
                 b0: np.ndarray, q_ul: float, q_sens: float) -> np.ndarray:
     """The scan of one block of columns (the ``reduce`` of the block walk: on a Dask
     worker, only the ``(k, 5)`` result travels back)."""
-    ec = bins(exposure[:, :, None] * columns)
-    out = np.empty((columns.shape[2], 5))
-    _ts_pixels(np.ascontiguousarray(ec.T, dtype=np.float64), y, m_rest, det, tb,
-               np.array(b0, dtype=float), float(q_ul), float(q_sens), out)
-    return out
+    return _scan_bins(bins(exposure[:, :, None] * columns), y, m_rest, det, tb, b0, q_ul,
+                      q_sens)
 
 
 def ts_map(

@@ -36,6 +36,7 @@ from astropy.stats import bayesian_blocks
 from rotmod._validate import as_array, as_int, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
+from rotmod.events.gti import join_touching
 
 __all__ = [
     "Background",
@@ -76,17 +77,6 @@ def _check_events(events: Any) -> EventList:
     return events
 
 
-def _merged_gti(events: EventList) -> np.ndarray:
-    """The good-time intervals with touching rows joined (``[0, 10], [10, 20]`` -> ``[0, 20]``)."""
-    out = [list(events.gti[0])]
-    for a, b in events.gti[1:]:
-        if a <= out[-1][1]:
-            out[-1][1] = max(out[-1][1], b)
-        else:
-            out.append([a, b])
-    return np.array(out, dtype=float)
-
-
 def _span(value: Any, name: str, events: EventList) -> tuple[float, float]:
     """A ``(start, stop)`` interval (s) covered by the good time of ``events``."""
     arr = as_array(value, name, u.s, ndim=1)
@@ -94,7 +84,7 @@ def _span(value: Any, name: str, events: EventList) -> tuple[float, float]:
         raise ParameterError(f"{name} must be (start, stop) in s with stop > start, got "
                              f"{np.array2string(arr, precision=6)}")
     a, b = float(arr[0]), float(arr[1])
-    gti = _merged_gti(events)
+    gti = join_touching(events.gti)
     if not np.any((gti[:, 0] <= a) & (b <= gti[:, 1])):
         where = ", ".join(f"[{g0:g}, {g1:g}]" for g0, g1 in gti[:5])
         more = ", ..." if len(gti) > 5 else ""

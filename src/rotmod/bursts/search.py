@@ -85,8 +85,10 @@ from scipy.special import betainc
 from scipy.stats import norm
 
 from rotmod._validate import as_array, as_scalar
+from rotmod.bursts.measure import _check_events
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
+from rotmod.events.gti import join_touching
 from rotmod.progress import ProgressArg, progress_callbacks
 
 if TYPE_CHECKING:
@@ -326,12 +328,6 @@ def _min_on_counts(n_max: int, rho: float, p_thr: float) -> np.ndarray:
 # --------------------------------------------------------------------------- arguments
 
 
-def _check_events(events: Any) -> EventList:
-    if not isinstance(events, EventList):
-        raise ParameterError(f"events must be an EventList, got {type(events).__name__}")
-    return events
-
-
 def _check_timescales(timescales: Any) -> np.ndarray:
     ts = as_array(timescales, "timescales", u.s, lo=0.0, lo_open=True, ndim=1)
     if ts.size == 0:
@@ -371,17 +367,6 @@ def _check_bands(bands: Any) -> tuple[Band, ...]:
     return tuple(out)
 
 
-def _good_intervals(gti: np.ndarray) -> np.ndarray:
-    """The GTIs with touching intervals joined (no gap between them)."""
-    rows = [list(gti[0])]
-    for a, b in gti[1:]:
-        if a <= rows[-1][1]:
-            rows[-1][1] = max(rows[-1][1], b)
-        else:
-            rows.append([a, b])
-    return np.array(rows, dtype=float)
-
-
 # --------------------------------------------------------------------------- the scan
 
 
@@ -408,7 +393,7 @@ def _plan(events: EventList, ts: np.ndarray, background_window: Any, gap: Any,
     g = None if gap is None else as_scalar(gap, "gap", u.s, lo=0.0)
     width = np.maximum(np.rint(ts / delta), 1).astype(np.int64)
     gaps = np.maximum(ts, MIN_GAP) if g is None else np.full(ts.size, g)
-    gti = _good_intervals(events.gti)
+    gti = join_touching(events.gti)
     n_bins = np.floor((gti[:, 1] - gti[:, 0]) / delta * (1.0 + 1e-12)).astype(np.int64)
     plan = _Plan(
         delta=delta, width=width, step=np.maximum(width // 2, 1),

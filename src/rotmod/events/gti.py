@@ -10,7 +10,7 @@ import numpy as np
 from rotmod._validate import as_array, as_scalar
 from rotmod.errors import ParameterError
 
-__all__ = ["check_gti"]
+__all__ = ["check_gti", "join_touching"]
 
 
 def check_gti(gti: Any, t_start: Any = None, t_stop: Any = None) -> np.ndarray:
@@ -60,3 +60,15 @@ def check_gti(gti: Any, t_start: Any = None, t_stop: Any = None) -> np.ndarray:
     if t1 is not None and g[-1, 1] > t1:
         raise ParameterError(f"gti must end at or before t_stop = {t1:g} s, got {g[-1, 1]:g} s")
     return np.array(g, dtype=float)
+
+
+def join_touching(gti: np.ndarray) -> np.ndarray:
+    """Checked GTIs ``(k, 2)`` with touching or overlapping rows joined (``[0, 10], [10,
+    20]`` -> ``[0, 20]``): the stretches of data without a gap."""
+    rows = [list(gti[0])]
+    for a, b in gti[1:]:
+        if a <= rows[-1][1]:
+            rows[-1][1] = max(rows[-1][1], b)
+        else:
+            rows.append([a, b])
+    return np.array(rows, dtype=float)

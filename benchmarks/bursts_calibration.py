@@ -22,6 +22,10 @@ Results are appended to the JSON after every burst; ``--resume`` skips the burst
     python benchmarks/bursts_calibration.py --n 3 --out /tmp/bcal3.json   # a check
     NUMBA_NUM_THREADS=1 python benchmarks/bursts_calibration.py --n 100    # the saved run
     python benchmarks/bursts_calibration.py --report                       # table of a JSON
+    # two shards, one core each, then one report of both:
+    NUMBA_NUM_THREADS=1 python benchmarks/bursts_calibration.py --shard 0/2 --out a.json &
+    NUMBA_NUM_THREADS=1 python benchmarks/bursts_calibration.py --shard 1/2 --out b.json
+    python benchmarks/bursts_calibration.py --out a.json --report b.json
 """
 
 from __future__ import annotations
@@ -143,7 +147,9 @@ def run_one(i: int, seed: int, inst, att, cache: dict, do_nolc: bool) -> dict:
     rec.update(
         sqrt_ts=bp.sqrt_ts, fit_theta=bp.theta, fit_phi=bp.phi, separation=best_sep,
         r90=bp.region.radius(0.9), r68=bp.region.radius(0.68),
-        contains90=bp.region.contains(pos, 0.9), contains68=bp.region.contains(pos, 0.68),
+        contains90=bp.contains(pos, 0.9), contains68=bp.contains(pos, 0.68),
+        best_mode_contains90=bp.region.contains(pos, 0.9),
+        posterior=bp.posterior.describe(),
         alternatives=alts, alt_close=bool(close),
         mirror_won=bool(any(a[1] < best_sep for a in close)),
         interval=list(burst.interval), t90=burst.durations.t90,
@@ -151,6 +157,13 @@ def run_one(i: int, seed: int, inst, att, cache: dict, do_nolc: bool) -> dict:
         fluence_err=burst.fluence_err,
     )
     rec.update(truth_diagnostic(burst, pos))
+    # Where the truth stands in the search's score map: the rank of its pixel (0 = the map's
+    # best) and its score below the best.
+    sc = bp.score
+    k = int(np.argmin(sc.grid.sky_coords().separation(pos).deg))
+    s_map = np.nan_to_num(sc.score, nan=-np.inf)
+    rec.update(score_rank=int(np.sum(s_map > s_map[k])),
+               score_ratio=float(s_map[k] / np.max(s_map)))
     if do_nolc:
         t = time.perf_counter()
         try:
@@ -161,9 +174,10 @@ def run_one(i: int, seed: int, inst, att, cache: dict, do_nolc: bool) -> dict:
             alts2 = [(float(d), _sep(c, pos)) for c, d in p2.alternatives]
             rec["nolc"] = {
                 "separation": s2, "r90": p2.region.radius(0.9), "r68": p2.region.radius(0.68),
-                "contains90": p2.region.contains(pos, 0.9),
-                "contains68": p2.region.contains(pos, 0.68), "sqrt_ts": p2.sqrt_ts,
+                "contains90": p2.contains(pos, 0.9),
+                "contains68": p2.contains(pos, 0.68), "sqrt_ts": p2.sqrt_ts,
                 "mirror_won": bool(any(d < ALT_DTS and s < s2 for d, s in alts2)),
+                "fit_theta": p2.theta, "fit_phi": p2.phi,
                 "time": time.perf_counter() - t}
         except Exception as exc:
             rec["nolc"] = {"error": f"{type(exc).__name__}: {exc}"}
@@ -172,18 +186,22 @@ def run_one(i: int, seed: int, inst, att, cache: dict, do_nolc: bool) -> dict:
 
 def truth_diagnostic(burst, truth) -> dict:
     """The TS of the best fit above the truth's (flux and background levels refitted, the
-    position held at the truth), in the fine fit's own bins and response: ``dts_truth < 0``
-    means the fit missed a higher maximum (at the truth); for a 2-D Wilks surface the
-    truth is in the 90 % region when ``dts_truth < 4.61``."""
-    from rotmod.bursts.localisation import _background_rates
+    position held at the truth, the light curve profiled there as at any trial position),
+    in the fine fit's own bins and response: ``dts_truth < 0`` means the fit missed a
+    higher maximum (at the truth); for a 2-D Wilks surface the truth is in the 90 % region
+    when ``dts_truth < 4.61``."""
+    from rotmod.bursts.localisation import _background_rates, _light_curve_from
     from rotmod.sources.fitting import SourceFitter
     from rotmod.sources.model import PointSource, SkyModel
     try:
         bp = burst.position
-        fitter = SourceFitter(bp.response, bp.counts.data(
-            _background_rates(burst.background, bp.counts)))
-        ll_best = fitter.maximise(bp.fit.model)[1].loglike
-        ll_true = fitter.maximise(SkyModel((PointSource(truth),)))[1].loglike
+        rates = _background_rates(burst.background, bp.counts)
+        data = bp.counts.data(rates)
+        ll_best = SourceFitter(bp.response, data).maximise(bp.fit.model)[1].loglike
+        src = PointSource(truth)
+        w = _light_curve_from(burst.light_curve, bp.counts, bp.response.with_weight(None), src)
+        fitter = SourceFitter(bp.response.with_weight(w), data)
+        ll_true = fitter.maximise(SkyModel((src,)))[1].loglike
         return {"dts_truth": float(2.0 * (ll_best - ll_true))}
     except Exception as exc:
         return {"dts_truth_error": f"{type(exc).__name__}: {exc}"}
@@ -255,6 +273,30 @@ def report(data: dict) -> str:
     for lab, sel in (("all analysed", ok), ("excluding mirror-mode wins", clean)):
         L.append(frac_line(f"90 % region, {lab}", sum(r["contains90"] for r in sel), len(sel)))
         L.append(frac_line(f"68 % region, {lab}", sum(r["contains68"] for r in sel), len(sel)))
+    L.append("  by sqrt(TS) (all analysed):")
+    for lo, hi in ((0, 12), (12, 20), (20, 35), (35, 1e9)):
+        sel = [r for r in ok if lo <= r["sqrt_ts"] < hi]
+        if sel:
+            lab = f"{lo:g}-{hi:g}" if hi < 1e8 else f">= {lo:g}"
+            L.append(frac_line(f"  90 %, sqrt TS {lab}", sum(r["contains90"] for r in sel),
+                               len(sel)))
+            L.append(frac_line(f"  68 %, sqrt TS {lab}", sum(r["contains68"] for r in sel),
+                               len(sel)))
+    multi = [r for r in ok if len(r.get("posterior", {}).get("modes", [1])) > 1]
+    L.append(frac_line("region of more than one mode", len(multi), len(ok)))
+    L.append(frac_line("best-mode region alone holds the truth (90 %)",
+                       sum(r.get("best_mode_contains90", False) for r in ok), len(ok)))
+    ranks = np.array([r["score_rank"] for r in ok if "score_rank" in r])
+    if ranks.size:
+        L.append(f"  score map: the truth's pixel is the map's best in "
+                 f"{int(np.sum(ranks == 0))}/{ranks.size}, within its 5 best in "
+                 f"{int(np.sum(ranks < 5))}, within 50 in {int(np.sum(ranks < 50))}")
+        for lo, hi in ((0, 12), (12, 1e9)):
+            sel = [r for r in ok if "score_rank" in r and lo <= r["sqrt_ts"] < hi]
+            if sel:
+                rk = np.array([r["score_rank"] for r in sel])
+                L.append(f"    sqrt TS {lo:g}-{hi:g}: best {int(np.sum(rk == 0))}/{rk.size}, "
+                         f"top 5 {int(np.sum(rk < 5))}, median rank {np.median(rk):.0f}")
     L.append(frac_line("alternative mode within dTS<9 exists", sum(r["alt_close"] for r in ok),
                        len(ok)))
     L.append(frac_line("mirror mode won (truth nearer the alternative)", len(mirror), len(ok)))
@@ -349,6 +391,24 @@ def report(data: dict) -> str:
                      f"{sum(q['contains68'] for q in g):4d}/{len(g):<4d} "
                      f"{sum(q['mirror_won'] for q in g):7d} "
                      f"{np.median([q['sqrt_ts'] for q in g]):10.1f}")
+        # Bias: the mean offset of the fits from the truth in the instrument frame (radial
+        # = theta, azimuthal = sin(theta) dphi), in units of each burst's r90, with its
+        # standard error; bursts whose best position is another mode (> 3 r90 away) are
+        # outliers, not bias, and are counted apart.
+        def offsets(q, t):
+            th, dphi = q["fit_theta"], (q["fit_phi"] - t["phi"] + 180.0) % 360.0 - 180.0
+            return np.array([th - t["theta"],
+                             math.sin(math.radians(t["theta"])) * dphi]) / q["r90"]
+        for lab, get in (("with L(t)", lambda r: r), ("constant", lambda r: r["nolc"])):
+            g = [(get(r), r["truth"]) for r in pair if "fit_theta" in get(r)]
+            core = [offsets(q, t) for q, t in g if q["separation"] <= 3.0 * q["r90"]]
+            if len(core) >= 2:
+                o = np.array(core)
+                m, e = o.mean(axis=0), o.std(axis=0, ddof=1) / math.sqrt(len(o))
+                L.append(f"  bias {lab:<10s}: radial {m[0]:+.3f} +- {e[0]:.3f} r90, "
+                         f"azimuthal {m[1]:+.3f} +- {e[1]:.3f} r90, |bias| "
+                         f"{math.hypot(*m):.3f} r90 over {len(o)} bursts within 3 r90 "
+                         f"({len(g) - len(o)} further: another mode)")
         rr = np.array([r["r90"] / r["nolc"]["r90"] for r in pair])
         ss = np.array([r["separation"] / r["nolc"]["separation"] for r in pair])
         L.append(f"  median r90(L)/r90(const) {np.median(rr):.3f}; median sep(L)/sep(const) "
@@ -403,16 +463,32 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--no-lc-subset", type=int, default=30,
                    help="detected bursts also analysed with light_curve=False (default 30)")
     p.add_argument("--resume", action="store_true", help="skip the bursts in --out")
-    p.add_argument("--report", action="store_true", help="only print the report of --out")
+    p.add_argument("--shard", default="0/1",
+                   help="K/N: only the bursts i with i %% N == K (run N processes, one core "
+                        "each, into separate --out files; --report merges them)")
+    p.add_argument("--reverse", action="store_true",
+                   help="take the shard's bursts from the last (a second process on a shard "
+                        "another one runs forward; --report keeps one record per burst)")
+    p.add_argument("--report", nargs="*", type=Path, default=None,
+                   help="only print the report of --out and of these other JSON files")
     args = p.parse_args(argv)
     out = args.out
     txt = out.with_suffix(".txt")
-    if args.report:
+    if args.report is not None:
         data = json.loads(out.read_text())
+        for extra in args.report:
+            data["bursts"] += json.loads(extra.read_text())["bursts"]
+        data["bursts"] = sorted({r["index"]: r for r in data["bursts"]}.values(),
+                                key=lambda r: r["index"])
         text = report(data)
         print(text)
         txt.write_text(text + "\n")
         return
+    try:
+        shard, n_shards = (int(v) for v in args.shard.split("/"))
+        assert 0 <= shard < n_shards
+    except (ValueError, AssertionError):
+        sys.exit(f"--shard: must be K/N with 0 <= K < N, got {args.shard!r}")
     inst, att = setup()
     if args.resume and out.exists():
         data = json.loads(out.read_text())
@@ -443,13 +519,13 @@ def main(argv: list[str] | None = None) -> None:
     done = {r["index"] for r in data["bursts"]}
     n_nolc = sum(1 for r in data["bursts"] if "nolc" in r)
     cache: dict = {}
-    for i in range(args.n):
-        if i in done:
+    for i in (range(args.n - 1, -1, -1) if args.reverse else range(args.n)):
+        if i in done or i % n_shards != shard:
             continue
         t0 = time.perf_counter()
         cold = not cache
         rec = run_one(i, args.seed, inst, att, cache,
-                      do_nolc=n_nolc < args.no_lc_subset)
+                      do_nolc=n_nolc < args.no_lc_subset / n_shards)
         if "nolc" in rec:
             n_nolc += 1
         if cold and "analyse_time" in rec:

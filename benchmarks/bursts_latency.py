@@ -6,8 +6,8 @@ off axis) are written to a FITS file.  Timed, from reading the file to writing t
 and the HEALPix probability map:
 
 * **ours, cold**: nothing prepared (the folded response of the attitude is computed here);
-* **ours, warm**: the folded response of the attitude computed before the trigger, as a
-  flight system would (``cache``);
+* **ours, warm**: the responses of the attitude (the search map's Radon tables, the folded
+  response of the fits) computed before the trigger, as a flight system would (``cache``);
 * **the straightforward way**: the likelihood of a source in every pixel of a HEALPix grid at
   the final resolution (pixels a quarter of the 90 % radius) over the searched cone, in the
   fine bins.  Timed on a random sample of the cone's pixels and scaled to all of them (a full
@@ -37,7 +37,6 @@ from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.io.regions import write_probability_map
 from rotmod.sky import Attitude
 from rotmod.sky.healpix import HealpixGrid
-from rotmod.sources.catalogue import probability_map
 from rotmod.sources.fitting import SourceFitter
 from rotmod.sources.model import SkyModel
 from rotmod.sources.tsmap import null_state, scan_test_source
@@ -52,7 +51,7 @@ def chain(path: Path, out: Path, cache: dict | None) -> tuple[float, object]:
     events = io.read(path)
     cand = max(search(events).candidates, key=lambda c: c.significance)
     burst = analyse_burst(events, cand, energy=300.0, radius=RADIUS, cache=cache)
-    write_probability_map(probability_map(burst.position.region), out / "prob.fits",
+    write_probability_map(burst.position.probability_map(), out / "prob.fits",
                           overwrite=True)
     (out / "summary.txt").write_text(burst.summary("GRB"))
     return time.perf_counter() - t, burst

@@ -17,13 +17,21 @@ from rotmod.bursts import (
     simulate_burst,
     true_durations,
 )
-from rotmod.bursts.localisation import bin_events, burst_response
+from rotmod.bursts.localisation import (
+    _background_rates,
+    bin_events,
+    burst_response,
+    default_time_bins,
+    search_map,
+)
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.montecarlo import simulate_observation
 from rotmod.sky import Attitude, PointSources
-from rotmod.sky.points import DirectionList
+from rotmod.sky.points import DirectionList, PositionList
+from rotmod.sources.fitting import SourceFitter
+from rotmod.sources.model import SkyModel
 
 #: A small, fast RM: 7 detectors of 5 cm under 3/3/3 cm lead 30 cm up (b/L = 5.7 deg), a
 #: 2 s turn, so that a few-second burst varies within a rotation.
@@ -82,7 +90,11 @@ def test_a_burst_is_found_localised_and_measured(burst_events):
     # The truth lies in the 99 % region (a single injection: the 90 % calibration is
     # benchmarks/bursts_calibration.py's).
     assert b.position.region.contains(truth, 0.99)
+    assert b.position.contains(truth, 0.99)
     assert b.position.sqrt_ts > 10
+    # A bright burst: its best mode holds nearly all the probability, and the map all of it.
+    assert b.position.posterior.best_probability > 0.99
+    assert b.position.probability_map().prob.sum() == pytest.approx(1.0, abs=1e-12)
     true = true_durations(pulse, 40.0, 80.0)
     assert abs(b.durations.t90 - true.t90) < 3 * b.durations.t90_err
     # Fluence: the pulse's integral over the projected face area (photons/cm^2).
@@ -98,6 +110,37 @@ def test_a_burst_is_found_localised_and_measured(burst_events):
     n_cached = len(cache)
     analyse_burst(ev, cand, energy=ENERGY, radius=40.0, cache=cache)
     assert len(cache) == n_cached
+
+
+def test_the_score_map_is_the_exact_likelihoods_slope_at_zero_flux(burst_events):
+    # Independent evidence for the search: at three pixels, the score U / sqrt(I) from the
+    # Radon factorisation's two adjoint products against the derivative of ln L in the flux
+    # at 0 and the Fisher information there, from the exact model's columns.
+    truth, ev = burst_events
+    bkg = fit_background(ev, [[0.0, 45.0], [70.0, 120.0]])
+    counts = bin_events(ev, 45.0, 65.0, time_bins=default_time_bins(INST, 40.0))
+    w = np.clip(pulse(counts.centres) / pulse(counts.centres).max(), 0.0, None)
+    pointing = PositionList.from_coords(ATT.pointing, ATT)
+    unit = burst_response(counts, lambda att: pointing, energy=ENERGY)
+    data = counts.data(_background_rates(bkg, counts))
+    fitter = SourceFitter(unit.with_weight(w), data)
+    score = search_map(counts, fitter, 16, 40.0, w, energy=ENERGY)
+    coords = score.grid.sky_coords()
+    best = int(np.nanargmax(score.score))
+    # The score peaks at the burst (within the map's pixel, 3.7 deg, and a half).
+    assert coords[best].separation(truth).deg < 1.5 * 3.7
+    mu0 = fitter.expected(fitter.maximise(SkyModel(()))[0])
+    e = counts.exposure[None, :]
+    for k in (best, 0, score.grid.size // 2):
+        col = burst_response(counts, lambda att, c=coords[k]: PositionList.from_coords(c, att),
+                             energy=ENERGY, weight=w).forward(np.ones(1))
+        use = mu0 > 0
+        u_k = np.sum((e * col)[use] * (counts.counts[use] / mu0[use] - 1.0))
+        i_k = np.sum((e * col)[use] ** 2 / mu0[use])
+        # The Radon table's tolerance is 1e-3 of a profile value (<= 1) and the information
+        # takes the mean of squared sub-samples for the square of their mean: a few 1e-3 of
+        # S, which is O(1-30) here.
+        assert score.score[k] == pytest.approx(u_k / np.sqrt(i_k), rel=0.02, abs=0.05)
 
 
 def test_a_burst_at_the_edge_of_the_data_uses_the_background_after_it(burst_events):

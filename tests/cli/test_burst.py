@@ -77,3 +77,18 @@ def test_no_burst_is_a_clear_answer(event_file, tmp_path):
     code, _, err = _run("burst", str(event_file), "-e", "300", "--radius", "40",
                         "--interval", "110,115", "-o", str(tmp_path / "b"))
     assert code == 0 and "not analysed" in err and "no block" in err
+
+
+def test_an_interrupt_exits_130_and_writes_nothing(event_file, tmp_path, monkeypatch):
+    # Ctrl-C during the analysis (the long step): the command stops with the shell's code
+    # for SIGINT and leaves no file of the burst behind, not even a partial one.
+    import rotmod.cli._burst as cli_burst
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_burst, "analyse_burst", interrupted)
+    code, _, err = _run("burst", str(event_file), "-e", "300", "--radius", "40",
+                        "-o", str(tmp_path / "grb"))
+    assert code == 130 and "interrupted" in err
+    assert list(tmp_path.iterdir()) == []

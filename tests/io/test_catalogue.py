@@ -325,6 +325,27 @@ def test_probability_map_is_the_region_on_healpix(results, tmp_path) -> None:
     assert (back.nside, back.order, back.name) == (prob.nside, "nested", "S1")
 
 
+def test_probability_map_of_several_regions_holds_their_weights() -> None:
+    # Two modes of one position, weighted 3 : 1, far apart: each one's pixels hold its
+    # weight (the squares' densities are each normalised; the map sums them).
+    pytest.importorskip("astropy_healpix")
+    a = gaussian_region(PointSource(SkyCoord(10.0 * u.deg, 20.0 * u.deg), name="A"))
+    b = gaussian_region(PointSource(SkyCoord(40.0 * u.deg, -5.0 * u.deg), name="B"))
+    prob = probability_map([a, b], weights=[3.0, 1.0])
+    assert prob.prob.sum() == pytest.approx(1.0, abs=1e-12)
+    import astropy_healpix as hp
+    centres = hp.HEALPix(prob.nside, "nested", frame="icrs").healpix_to_skycoord(prob.pixels)
+    near_a = centres.separation(a.source.position).deg < 5.0
+    # The square's density is sampled at the pixel centres: the sum over pixels equals the
+    # square's total to the discretisation of a Gaussian at a quarter of r68 (< 1 %).
+    assert prob.prob[near_a].sum() == pytest.approx(0.75, rel=0.01)
+    assert prob.name == "A"
+    with pytest.raises(ParameterError, match="weights must be 2 finite values"):
+        probability_map([a, b], weights=[1.0, -1.0])
+    with pytest.raises(ParameterError, match="a Region or a sequence"):
+        probability_map([a, "b"])
+
+
 def test_probability_maps_refuse_what_is_no_map() -> None:
     with pytest.raises(ParameterError, match="nside must be a power of 2"):
         HealpixProbability(3, [0], [1.0])

@@ -9,8 +9,9 @@ the burst.
   energy bands, at a stated false-alarm rate;
 * :func:`fit_background`, :func:`burst_light_curve`, :func:`durations` -- the background
   per detector, the Bayesian-block light curve, T90/T50, net counts and peak rate;
-* :func:`localise_burst` -- the position: a coarse TS map of the visible sky, continuous
-  refits, the region from the likelihood surface;
+* :func:`localise_burst` -- the position: a score map of the visible sky (two adjoint
+  products), the exact likelihood at its peaks, continuous refits, and the region from the
+  likelihood surfaces of every mode (:class:`Posterior`);
 * :func:`analyse_burst` -- all of it from a candidate to a :class:`Burst` with a
   GCN-style summary;
 * :func:`simulate_burst` -- injected bursts (exact model) for tests and calibration.
@@ -20,7 +21,7 @@ See ``docs/bursts.md``.
 
 from rotmod.bursts.analysis import Burst, analyse_burst
 from rotmod.bursts.inject import simulate_burst
-from rotmod.bursts.localisation import BurstPosition, localise_burst
+from rotmod.bursts.localisation import BurstPosition, ScoreMap, localise_burst, search_map
 from rotmod.bursts.measure import (
     Background,
     BurstLightCurve,
@@ -31,9 +32,10 @@ from rotmod.bursts.measure import (
     norris_pulse,
     true_durations,
 )
+from rotmod.bursts.posterior import Posterior
 from rotmod.bursts.search import Candidate, SearchResult, search
 
 __all__ = ["Background", "Burst", "BurstLightCurve", "BurstPosition", "Candidate",
-           "Durations", "SearchResult", "analyse_burst", "burst_light_curve", "durations",
-           "fit_background", "localise_burst", "norris_pulse", "search", "simulate_burst",
-           "true_durations"]
+           "Durations", "Posterior", "ScoreMap", "SearchResult", "analyse_burst",
+           "burst_light_curve", "durations", "fit_background", "localise_burst",
+           "norris_pulse", "search", "search_map", "simulate_burst", "true_durations"]

@@ -119,11 +119,15 @@ class Burst:
             f"radius {r90:.2f} deg (68 %: {r68:.2f} deg; {sys_note}); "
             f"{p.theta:.1f} deg off axis (azimuth {p.phi:.1f} deg).",
         ]
-        close = [(pos, dts) for pos, dts in p.alternatives if dts < 9.0]
-        for pos, dts in close:
-            a = pos.icrs
-            lines.append(f"  An alternative position at RA, Dec = {a.ra.deg:.3f}, "
-                         f"{a.dec.deg:+.3f} deg is {dts:.1f} below in TS: not excluded.")
+        post = p.posterior
+        if post is not None and len(post.squares) > 1:
+            lines.append(f"  This position holds {post.best_probability:.0%} of the probability; "
+                         f"the 90 % region ({post.area(0.9):.2g} deg2) also includes:")
+            for r, prob in zip(post.squares[1:], post.square_probability[1:], strict=True):
+                a = r.source.position.icrs
+                dts = 2.0 * (np.nanmax(post.squares[0].ts) - np.nanmax(r.ts))
+                lines.append(f"  RA, Dec = {a.ra.deg:.3f}, {a.dec.deg:+.3f} deg "
+                             f"(probability {prob:.0%}, TS {dts:.1f} below).")
         lines += [
             f"T90 = {d.t90:.2f} +/- {d.t90_err:.2f} s from t = {d.t90_start:.3f} s; "
             f"T50 = {d.t50:.2f} +/- {d.t50_err:.2f} s.",

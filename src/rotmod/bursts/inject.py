@@ -5,8 +5,10 @@ of every response) at a fixed direction gives detector ``d`` the rate
 ``F(t) P_d(xi(t))``, with ``xi(t) = 2 pi t / T + xi_0`` the mask angle.  The events are
 drawn bin by bin on a fine grid aligned with the mask-angle bins (``n_fine`` per turn):
 Poisson counts of ``P_d`` at the bin's angle times the light curve integrated over the bin
-(Simpson's rule), at times uniform within the bin.  With 1024 bins per turn the drawn
-rate follows the true one to far better than any analysis bin resolves.  A flat
+(Simpson's rule), at times uniform within the bin.  The grid has 32 bins per mask period
+passing over a detector, so that the drawn rate follows the continuous one far better than
+the analysis's bins (8 samples per period) resolve it: a staircase of 6 bins per period put
+the truth of a bright burst outside its 90 % region.  A flat
 background per detector, with an optional linear trend, is added as Poisson events.
 """
 
@@ -21,6 +23,7 @@ from astropy.coordinates import SkyCoord
 
 from rotmod._validate import as_angle_scalar, as_energy_scalar, as_int, as_scalar
 from rotmod.binning import TimeBinning
+from rotmod.bursts.localisation import periods_per_turn
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
 from rotmod.geometry import Instrument
@@ -45,7 +48,7 @@ def simulate_burst(
     start_phase: Any = 0.0,
     attitude: Attitude | None = None,
     model: str = "exact",
-    n_fine: int = 1024,
+    n_fine: int | None = None,
     seed: Any = None,
 ) -> EventList:
     """Events of a burst and a background over ``[t_start, t_stop)``.
@@ -72,8 +75,15 @@ def simulate_burst(
         Required for a sky position; recorded with the events.
     model : str
         Profile model of the injection.
-    n_fine : int
-        Bins per turn of the injection grid, >= 8.
+    n_fine : int, optional
+        Bins per turn of the injection grid, >= 8.  Default: 32 per mask period passing
+        over a detector at the burst's off-axis angle
+        (:func:`~rotmod.bursts.localisation.periods_per_turn`), a power of 2, at least 1024.
+        The rate is held at each bin's centre value, so a coarser grid is a staircase of
+        the modulation: with 1024 bins per turn (6 per period at 60 deg off axis on the
+        survey instrument) the injected counts disagreed with the continuous model by
+        enough to push a burst of sqrt(TS) 181 out of its 90 % region (dTS 9.3; 0.2 with
+        8192 bins).
     seed : optional
         Randomness.
 
@@ -88,7 +98,6 @@ def simulate_burst(
     t1 = as_scalar(t_stop, "t_stop", u.s)
     if not t1 > t0:
         raise ParameterError(f"t_stop must be > t_start ({t0:g} s), got {t1:g} s")
-    n_fine = as_int(n_fine, "n_fine", 8)
     e = as_energy_scalar(energy, "energy")
     phase0 = as_angle_scalar(start_phase, "start_phase")
     n_det = len(instrument.detectors)
@@ -111,6 +120,10 @@ def simulate_burst(
             raise ParameterError(f"position must be a SkyCoord or (theta, phi), got "
                                  f"{position!r}") from exc
         direction = DirectionList(np.atleast_1d(th), np.atleast_1d(ph))
+    if n_fine is None:
+        per_turn = 32.0 * periods_per_turn(instrument, float(np.max(direction.theta)))
+        n_fine = int(2 ** np.ceil(np.log2(max(per_turn, 1024.0))))
+    n_fine = as_int(n_fine, "n_fine", 8)
     tb = TimeBinning(n_fine)
     profile = build_response(instrument, direction, tb, model=model, energy=e,
                              dtype=np.float64).matrix[:, :, 0]          # (n_det, n_fine)

@@ -1,4 +1,4 @@
-"""Where a burst is: its unfolded counts fitted on the sky, coarse to fine.
+"""Where a burst is: its unfolded counts searched on the whole visible sky, then fitted.
 
 The counts of a window around the burst are kept in time bins aligned with the mask-angle
 bins (:func:`bin_events`); the model of bin ``k`` of detector ``d`` is
@@ -12,14 +12,19 @@ burst and ``beta_d`` a free level per detector (the background's normalisation d
 burst is fitted with the burst, as in the source fits).  The response is an
 :class:`~rotmod.response.UnfoldedResponse`, so the source layer does the rest:
 
-1. **coarse**: a TS map (:func:`rotmod.sources.ts_map`) on a HEALPix cone over the visible
-   sky, with pixels about the instrument's scale ``b / L``, in wide mask-angle bins;
-2. **fine**: the neighbourhoods of the best local maxima scanned in narrower bins, then in
-   the fine bins (which resolve the modulation at the candidates' off-axis angles), and
-   the best peaks refitted with a continuous position; the highest likelihood is kept and
-   the others are reported as alternatives;
-3. **region**: :func:`rotmod.sources.localise` -- the likelihood surface, with a settable
-   systematic term, its 68 % and 90 % contours and a HEALPix probability map.
+1. **search**: the score map (:func:`search_map`) of a HEALPix cone over the visible sky,
+   pixels a quarter of ``b / L``: the slope of ``ln L`` in a source's flux at flux 0 over
+   its noise, for every pixel from two adjoint products (of ``P`` and of ``P**2``, through
+   the Radon factorisation) -- the matched filter of the burst's excess, which peaks at the
+   burst (Cauchy-Schwarz);
+2. **fits**: the exact likelihood at the map's best distinct peaks, and Nelder-Mead climbs
+   from the most likely of them in bins that resolve the modulation at their off-axis
+   angles, the light curve profiled at each trial position; the highest likelihood is
+   kept and the others are reported as alternatives;
+3. **region**: :func:`rotmod.sources.localise` -- the likelihood surface around the best
+   and every other mode within :data:`MODE_DTS`, each weighted by its probability
+   (:class:`~rotmod.bursts.posterior.Posterior`), with a settable systematic term, 68 %
+   and 90 % contours and a HEALPix probability map.
 
 ``docs/bursts.md`` derives the bin widths and says why each stage is there.
 """
@@ -39,38 +44,53 @@ from astropy.coordinates import SkyCoord
 from rotmod._validate import as_angle_scalar, as_int
 from rotmod.binning import TimeBinning
 from rotmod.bursts.measure import Background, BurstLightCurve
+from rotmod.bursts.posterior import Posterior
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
+from rotmod.io.regions import HealpixProbability
+from rotmod.profiles import get_model
 from rotmod.progress import ProgressArg
 from rotmod.reconstruction.data import PoissonData
 from rotmod.response import ResponseOperator, UnfoldedResponse, aligned_edges, build_response
 from rotmod.response.columns import columns_at
+from rotmod.response.operator import MaterialisedResponse
+from rotmod.response.radon import RadonResponse
 from rotmod.sky.attitude import Attitude, AttitudeTable
 from rotmod.sky.geometry import SkyGeometry
 from rotmod.sky.healpix import HealpixGrid
 from rotmod.sky.points import PositionList
-from rotmod.sources.detection import pixel_position
 from rotmod.sources.fitting import FitResult, SourceFitter, fit_with, geometric_scale
 from rotmod.sources.localisation import Region, localise
 from rotmod.sources.model import PointSource, SkyModel, positions_of
-from rotmod.sources.tsmap import TSMap, ts_map
 
-__all__ = ["BurstCounts", "BurstPosition", "bin_events", "burst_response", "localise_burst"]
+__all__ = ["BurstCounts", "BurstPosition", "ScoreMap", "bin_events", "burst_response",
+           "localise_burst", "search_map"]
 
 #: Attitude segments of at most this many seconds (a balloon's pointing moves by well under
 #: the instrument's scale in that time; a fast slew can pass a shorter step).
 MAX_ATTITUDE_STEP = 10.0
-#: Off-axis margin (deg) beyond the coarse candidates for the fine bins' sampling: the
+#: Off-axis margin (deg) beyond the candidates for the fine bins' sampling: the
 #: coarse pixels are ~b/L across, and a fit moves by a few of them at most.
 FINE_MARGIN = 5.0
-#: Mask-angle bins per turn of the coarse map (11 deg each).  With pixels of ~b/L, 32 bins
-#: found the burst's basin at 10-35 deg off axis on the survey instrument where 64 missed
-#: it at 35 deg (its peak narrower than a pixel), in single injections during development;
-#: benchmarks/bursts_calibration.py measures the whole chain.
-COARSE_BINS = 32
-#: Positions passed on from the coarse to the medium bins, and from the medium to the fine.
-MEDIUM_CANDIDATES = 4
+#: Pixels of the score map: at most a quarter of ``b / L``, so that the likelihood's core
+#: (narrower than its fringes, ~``p cos^2(theta) / L`` apart) is sampled.
+SEARCH_PIXEL = 0.25
+#: Tolerance of the Radon table of the score map (profile values): it ranks candidates,
+#: which the exact likelihood then decides between.
+SEARCH_TOLERANCE = 1e-3
+#: Distinct peaks of the score map whose exact likelihood is computed, and how many of the
+#: most likely are refitted with a continuous position.
+SCORE_PEAKS = 16
 FINE_FITS = 3
+#: Modes within this TS of the best are part of the region (their probability relative to
+#: the best's is at least ~exp(-MODE_DTS / 2)); peaks of the map within MODE_DTS +
+#: CLIMB_MARGIN at their pixel centre are climbed, at most MAX_CLIMBS of them.
+MODE_DTS = 12.0
+CLIMB_MARGIN = 6.0
+MAX_CLIMBS = 5
+#: Points per side of a secondary mode's square (the best's has the default of
+#: :func:`rotmod.sources.localise`).
+MODE_SIDE = 21
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,10 +211,7 @@ def burst_response(counts: BurstCounts, grid_for: Callable[[Attitude], SkyGeomet
     parts = []
     for att in counts.attitudes:
         grid = grid_for(att)
-        key = (att.ra, att.dec, att.roll, json.dumps(grid.to_dict(), sort_keys=True,
-                                                     default=str),
-               tuple(counts.time_bins.to_dict().items()), str(model), float(energy),
-               json.dumps(inst.to_dict(), sort_keys=True, default=str))
+        key = _key("folded", counts, att, grid, model, energy)
         if key not in cache:
             cache[key] = build_response(inst, grid, counts.time_bins, model=model,
                                         energy=energy, dtype=np.float64)
@@ -202,7 +219,93 @@ def burst_response(counts: BurstCounts, grid_for: Callable[[Attitude], SkyGeomet
     return UnfoldedResponse(parts, counts.segment, counts.phase, weight, counts.edges)
 
 
-def coarse_nside(response_scale: float) -> int:
+def _key(kind: str, counts: BurstCounts, att: Attitude, grid: SkyGeometry, model: Any,
+         energy: Any) -> tuple[Any, ...]:
+    """What a cached response depends on: the attitude, grid, binning, model, energy and
+    instrument."""
+    return (kind, att.ra, att.dec, att.roll,
+            json.dumps(grid.to_dict(), sort_keys=True, default=str),
+            tuple(counts.time_bins.to_dict().items()), str(model), float(energy),
+            json.dumps(counts.events.instrument.to_dict(), sort_keys=True, default=str))
+
+
+@dataclass(frozen=True, eq=False)
+class ScoreMap:
+    """The score map of a burst's counts on a HEALPix cone (:func:`search_map`).
+
+    Attributes
+    ----------
+    grid : HealpixGrid
+        The cone, at the attitude of the window's first time bin.
+    score : ndarray, shape (n_pix,)
+        ``U / sqrt(I)`` per pixel: the derivative of ``ln L`` in a source's flux at flux 0
+        (the background fitted alone) over its noise.  Its square is Rao's score statistic
+        (``chi^2_1`` without a source, as the TS); with a source, its expectation is
+        largest at the source's position (Cauchy-Schwarz), which is what the search uses.
+    """
+
+    grid: HealpixGrid
+    score: np.ndarray
+
+
+def _search_operators(counts: BurstCounts, grid: SkyGeometry, model: Any, energy: Any
+                      ) -> tuple[ResponseOperator, ResponseOperator]:
+    """The response ``P`` of one attitude on ``grid`` and the operator of ``P**2``.
+
+    The ideal instrument's exact model through the Radon factorisation (its table and the
+    table's square: the mean of squared sub-samples, as the information wants); otherwise
+    the materialised response and its square.
+    """
+    inst, bins = counts.events.instrument, counts.time_bins
+    if inst.is_ideal and get_model(model).name == "exact":
+        r = RadonResponse(inst, grid, bins, energy, tolerance=SEARCH_TOLERANCE,
+                          dtype=np.float64)
+        return r, RadonResponse(inst, grid, bins, energy, tolerance=SEARCH_TOLERANCE,
+                                dtype=np.float64, table=r.table ** 2)
+    m = build_response(inst, grid, bins, model=model, energy=energy, dtype=np.float64)
+    return m, MaterialisedResponse(m.matrix ** 2)
+
+
+def search_map(counts: BurstCounts, fitter: SourceFitter, nside: int, radius: float,
+               weight: np.ndarray | None, *, energy: Any, model: Any = "exact",
+               cache: dict[Any, Any] | None = None) -> ScoreMap:
+    """The score map of a point source over the cone of ``radius`` (deg) around the first
+    pointing, on HEALPix pixels of ``nside``.
+
+    With ``mu0`` the background fitted alone (``fitter``'s null model), ``E`` the bins'
+    exposure and ``w`` the light curve ``weight``, the score of pixel ``n`` is
+
+        U_n = sum_{d,k} E_k w_k P[d, k, n] (y[d, k] / mu0[d, k] - 1),
+        I_n = sum_{d,k} (E_k w_k P[d, k, n])^2 / mu0[d, k],
+
+    two adjoint products (of ``P`` and of ``P**2``), whatever the number of pixels: with
+    the Radon factorisation a cone of 10^5 pixels in ~1 s, where the TS of each pixel would
+    evaluate each pixel's column.
+    """
+    cache = {} if cache is None else cache
+    first = counts.attitudes[int(counts.segment[0])]
+    mu0 = fitter.expected(fitter.maximise(SkyModel(()))[0])
+    e = counts.exposure[None, :]
+    safe = np.where(mu0 > 0, mu0, 1.0)
+    resid = np.where(mu0 > 0, e * (counts.counts / safe - 1.0), 0.0)
+    info = np.where(mu0 > 0, e ** 2 / safe, 0.0)
+    ops = []
+    for att in counts.attitudes:
+        grid = HealpixGrid(nside, first.ra, first.dec, radius, att)
+        key = _key("search", counts, att, grid, model, energy)
+        if key not in cache:
+            cache[key] = _search_operators(counts, grid, model, energy)
+        ops.append(cache[key])
+    w = np.ones(counts.edges.size - 1) if weight is None else np.asarray(weight, float)
+    u_n = UnfoldedResponse([o[0] for o in ops], counts.segment, counts.phase, w,
+                           counts.edges).adjoint(resid)
+    i_n = UnfoldedResponse([o[1] for o in ops], counts.segment, counts.phase, w ** 2,
+                           counts.edges).adjoint(info)
+    score = np.where(i_n > 0, u_n / np.sqrt(np.where(i_n > 0, i_n, 1.0)), np.nan)
+    return ScoreMap(HealpixGrid(nside, first.ra, first.dec, radius, first), score)
+
+
+def search_nside(response_scale: float) -> int:
     """The HEALPix ``nside`` whose pixels (``58.6 deg / nside``) are at most ~the
     instrument's scale ``b / L`` (rad): finer pixels than the likelihood's features."""
     nside = 1
@@ -227,8 +330,8 @@ class BurstPosition:
     fit : FitResult
         The fitted model (burst flux, background levels) with the burst's TS and flux
         errors.
-    coarse : TSMap
-        The TS map of the visible sky the search started from (with the light curve).
+    score : ScoreMap
+        The score map of the visible sky the search started from (with the light curve).
     response : UnfoldedResponse
         The response of the fit (its light curve weights).
     counts : BurstCounts
@@ -237,6 +340,10 @@ class BurstPosition:
         Other local maxima refitted, with their TS below the best (``delta TS``): a mode
         within a few units of TS (the mirror image of a symmetric array, a short burst's
         partial turn) is a real ambiguity, stated in the summary.
+    posterior : Posterior
+        The probability over the cone: the surfaces of the best position and of every other
+        mode within :data:`MODE_DTS`, and the score map's pixels elsewhere.
+        :meth:`contains` and :meth:`probability_map` use it.
     """
 
     position: SkyCoord
@@ -244,10 +351,11 @@ class BurstPosition:
     phi: float
     region: Region
     fit: FitResult
-    coarse: TSMap
+    score: ScoreMap
     response: UnfoldedResponse
     counts: BurstCounts
     alternatives: tuple[tuple[SkyCoord, float], ...] = ()
+    posterior: Posterior | None = None
 
     @property
     def ts(self) -> float:
@@ -264,20 +372,30 @@ class BurstPosition:
         """Fitted flux ``F`` at light-curve weight 1 (photons/s on one unobstructed face)."""
         return float(self.fit.model.sources[0].flux)
 
+    def contains(self, position: SkyCoord, containment: float = 0.9) -> bool:
+        """Whether ``position`` lies in the region of ``containment`` (every mode and the
+        rest of the cone included: :attr:`posterior`)."""
+        return self.posterior.contains(position, containment)
 
-def _local_maxima(tsm: TSMap, grid: HealpixGrid, n: int) -> list[int]:
-    """The ``n`` highest pixels that are the highest within twice the pixel size."""
-    ts = np.nan_to_num(np.ravel(tsm.ts), nan=-np.inf)
-    th, ph = grid.directions()
-    v = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=1)
-    near = np.cos(2.0 * np.radians(58.6 / grid.nside))
+    def probability_map(self, nside: int | None = None) -> HealpixProbability:
+        """The position's probability on HEALPix pixels (ICRS), every mode included."""
+        return self.posterior.probability_map(nside)
+
+
+def _peaks(theta: np.ndarray, phi: np.ndarray, values: np.ndarray, apart: float, n: int
+           ) -> np.ndarray:
+    """Indices of the ``n`` highest values that are the highest within ``apart`` (rad)."""
+    v = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)],
+                 axis=1)
+    near = np.cos(apart)
+    t = np.nan_to_num(values, nan=-np.inf)
     picked: list[int] = []
-    for i in np.argsort(ts)[::-1]:
-        if not np.isfinite(ts[i]) or len(picked) >= n:
+    for i in np.argsort(t)[::-1]:
+        if not np.isfinite(t[i]) or len(picked) >= n:
             break
-        if all(v[i] @ v[j] < near for j in picked):
+        if not picked or np.all(v[picked] @ v[i] < near):
             picked.append(int(i))
-    return picked
+    return np.array(picked, dtype=np.int64)
 
 
 def _light_curve_from(light_curve: BurstLightCurve, counts: BurstCounts,
@@ -303,31 +421,35 @@ def _light_curve_from(light_curve: BurstLightCurve, counts: BurstCounts,
     return w / w.max() if w.max() > 0 else light_curve.shape(counts.edges)
 
 
+def periods_per_turn(instrument: Any, theta_deg: float) -> float:
+    """The most mask periods that pass over a detector in one turn, for a source up to
+    ``theta_deg`` off axis.
+
+    The ray from a source at ``t = tan(theta) (cos phi, sin phi)`` to detector ``d`` at
+    ``(x_d, y_d)`` crosses the mask at ``u = delta_d(xi) + L w(xi)`` across the slats
+    (``docs/physics.md``), with ``delta_d = x_d cos xi - y_d sin xi`` and ``w = t_x cos xi -
+    t_y sin xi``: it moves by at most ``|r_d| + L tan(theta)`` per radian of mask angle, the
+    detector's own distance from the axis included (an outer detector is modulated even by
+    a source on the axis).
+    """
+    mask = instrument.mask
+    r_max = float(np.max(np.hypot(*instrument.detectors.positions.T)))
+    return 2.0 * np.pi * (r_max + mask.height * np.tan(np.radians(theta_deg))) / mask.period
+
+
 def default_time_bins(instrument: Any, radius_deg: float) -> TimeBinning:
     """Mask-angle bins that resolve the modulation out to ``radius_deg`` off axis.
 
-    The slats' shadow moves across a detector at up to ``L tan(theta)`` per radian of
-    mask angle, so one period ``p = a + b`` of the mask passes in ``p / (L tan theta)``
-    rad; eight samples per period (up to 60 deg off axis, beyond which the effective area
-    is small) fix the number of samples per turn, taken as bins of two sub-samples each
-    (``"average"`` mode: a bin's response is its mean, as its counts are).  With four
-    (bins of half a period) the midpoint rule's error in a bin's mean biased positions by
-    more than their 90 % radius at 25 deg off axis (measured); with eight it did not.
+    Eight samples per mask period passing over a detector (:func:`periods_per_turn`, up to
+    60 deg off axis, beyond which the effective area is small) fix the number of samples per
+    turn, taken as bins of two sub-samples each (``"average"`` mode: a bin's response is its
+    mean, as its counts are).  With four (bins of half a period) the midpoint rule's error
+    in a bin's mean biased positions by more than their 90 % radius at 25 deg off axis
+    (measured); with eight the calibration's positions show no bias (docs/bursts.md).
     """
-    mask = instrument.mask
-    theta = np.radians(min(radius_deg, 60.0))
-    samples = 8.0 * 2.0 * np.pi * mask.height * np.tan(theta) / mask.period
+    samples = 8.0 * periods_per_turn(instrument, min(radius_deg, 60.0))
     n = int(2 ** np.ceil(np.log2(max(samples, 64.0))))
     return TimeBinning(n // 2, "average", 2)
-
-
-def coarse_time_bins(fine: TimeBinning) -> TimeBinning:
-    """The coarse map's bins: :data:`COARSE_BINS` per turn, each the mean of as many
-    samples as the fine bins take, so that the modulation faster than the coarse pixels is
-    averaged out and the map's peak is as broad as a pixel (a narrow peak falls between
-    pixel centres, and the map then peaks on a sidelobe)."""
-    n = min(COARSE_BINS, fine.n_bins)
-    return TimeBinning(n, "average", max(fine.n_bins * fine.n_sub // n, 1))
 
 
 def _background_rates(background: Background, counts: BurstCounts) -> np.ndarray:
@@ -348,12 +470,12 @@ def localise_burst(
     radius: Any = 80.0,
     nside: int | None = None,
     time_bins: TimeBinning | None = None,
-    n_refine: int = 4,
+    n_refine: int = FINE_FITS,
     systematic: Any = 0.0,
     progress: ProgressArg = None,
     cache: dict[Any, ResponseOperator] | None = None,
 ) -> BurstPosition:
-    """Localise a burst: coarse TS map of the visible sky, continuous refit, region.
+    """Localise a burst: score map of the visible sky, exact refits of its peaks, region.
 
     Parameters
     ----------
@@ -379,18 +501,18 @@ def localise_burst(
     radius : float or Quantity
         Radius of the searched cone around the pointing (deg), < 90.
     nside : int, optional
-        HEALPix ``nside`` of the coarse map (default: pixels about ``b / L``).
+        HEALPix ``nside`` of the first map (default: pixels about ``2 b / L``,
+        :data:`FIRST_PIXEL`); the levels after it halve the pixels down to ``b / (4 L)``.
     time_bins : TimeBinning, optional
-        Mask-angle bins of the fine fit (default :func:`default_time_bins` out to the
-        coarse candidates' off-axis angle plus :data:`FINE_MARGIN`); the coarse map uses
-        :func:`coarse_time_bins` of :func:`default_time_bins` at ``radius``.
+        Mask-angle bins of the continuous fits (default :func:`default_time_bins` out to
+        the last level's peaks' off-axis angle plus :data:`FINE_MARGIN`); each map's bins
+        are :func:`level_bins` of :func:`default_time_bins` at ``radius``.
     n_refine : int
-        Local maxima of each coarse map (with the light curve, and with the burst's extent
-        weighted evenly) refined, >= 1.
+        Distinct peaks of the last map refitted with a continuous position, >= 1.
     systematic : float or Quantity
         Systematic error per axis added to the region (deg if plain), >= 0.
     progress : bool or callable, optional
-        Progress over the coarse map's pixels.
+        Progress over each map's pixels.
     cache : dict, optional
         Folded responses computed before, by attitude (:func:`burst_response`).
     """
@@ -412,9 +534,8 @@ def localise_burst(
     rad = float(np.degrees(as_angle_scalar(radius, "radius", lo=0.0, hi=90.0, lo_open=True,
                                            hi_open=True)))
     inst = events.instrument
-    fine_bins = default_time_bins(inst, rad) if time_bins is None else \
-        TimeBinning.coerce(time_bins)
-    side = (coarse_nside(geometric_scale(inst)) if nside is None
+    fine_bins = None if time_bins is None else TimeBinning.coerce(time_bins)
+    side = (search_nside(SEARCH_PIXEL * geometric_scale(inst)) if nside is None
             else as_int(nside, "nside", 1))
     cache = {} if cache is None else cache
 
@@ -424,102 +545,76 @@ def localise_burst(
         shape = light_curve.shape if isinstance(light_curve, BurstLightCurve) else light_curve
         return np.asarray(shape(c.edges), dtype=float)
 
-    # 1. Coarse: a TS map of the cone, in wide mask-angle bins.
-    coarse = bin_events(events, t0, t1, time_bins=coarse_time_bins(fine_bins),
-                        attitude=attitude, max_step=max_step)
-    first = coarse.attitudes[int(coarse.segment[0])]
+    # 1. The score map of the cone: the matched filter of the counts' excess over the
+    # background, normalised by its noise, for every pixel at once (search_map), in bins
+    # that resolve the modulation out to the cone's edge.
+    def binned(bins: TimeBinning) -> tuple[BurstCounts, UnfoldedResponse, PoissonData]:
+        c = bin_events(events, t0, t1, time_bins=bins, attitude=attitude, max_step=max_step)
+        first = c.attitudes[int(c.segment[0])]
+        unit = burst_response(c, lambda att: PositionList.from_coords(first.pointing, att),
+                              energy=energy, model=model, cache=cache)
+        return c, unit, c.data(_background_rates(background, c))
 
-    def cone(att: Attitude) -> HealpixGrid:
-        return HealpixGrid(side, first.ra, first.dec, rad, att)
-
-    # Two coarse maps: with the light curve, and with the burst's extent weighted evenly.
-    # The shape sharpens a map's peak, which can then fall between pixels and leave the map
-    # peaking on a sidelobe (a burst 55 deg off axis was missed with the shape alone, one 18
-    # deg off axis without it), so the local maxima of both are refined.
-    data = coarse.data(_background_rates(background, coarse))
-    w = weights(coarse)
-    starts: list[Any] = []
-    tsm: TSMap | None = None
-    for weight in ([w, (w > 0).astype(float)] if w is not None else [None]):
-        response = burst_response(coarse, cone, energy=energy, model=model, weight=weight,
-                                  cache=cache)
-        m = ts_map(response, data, limits=False, progress=progress)
-        tsm = m if tsm is None else tsm
-        for p in _local_maxima(m, response.grid, n_refine):
-            new = PointSource(pixel_position(response, p))
-            if all(new.separation(PointSource(s)) > 2.0 * 58.6 / side for s in starts):
-                starts.append(new.position)
-    if not starts:
-        raise ParameterError("the coarse map has no finite TS: no counts above background")
-    # 2. Fine: continuous fits in ever finer mask-angle bins, each stage climbing from the
-    # best positions of the one before.  The likelihood in fine bins has fringes (a shadow
-    # shifted by one mask period, ~p cos^2(theta) / L apart) around a core far narrower
-    # than a coarse pixel: a climb there from a pixel away stops on a fringe.  In bins 16x
-    # and 4x wider the core is broader and the fringes washed out, so the coarse and medium
-    # climbs bring the start within reach of the core.  The fine bins resolve the
-    # modulation at the candidates' own off-axis angles (a burst near the axis needs a
-    # fraction of the samples of one at the cone's edge).
+    search_bins = default_time_bins(inst, rad)
+    counts, unit, data = binned(search_bins)
+    first = counts.attitudes[int(counts.segment[0])]
+    w = weights(counts)
+    null_fitter = SourceFitter(unit.with_weight(w), data)
+    score = search_map(counts, null_fitter, side, rad, w, energy=energy, model=model,
+                       cache=cache)
+    # 2. The exact likelihood at the score map's best distinct peaks, then continuous fits
+    # from the most likely of them, in bins that resolve the modulation out to their
+    # off-axis angles (a burst near the axis needs a fraction of the samples of one at the
+    # cone's edge).
+    pixel = np.radians(58.6 / side)
+    th, ph = score.grid.directions()
+    peaks = _peaks(th.to_value(u.rad), ph.to_value(u.rad), score.score, 2.0 * pixel,
+                   SCORE_PEAKS)
+    if peaks.size == 0:
+        raise ParameterError("the score map has no finite value: no exposure in the window")
+    coords = score.grid.sky_coords()[peaks]
+    peak_ll = np.array([null_fitter.maximise(SkyModel((PointSource(c),)))[1].loglike
+                        for c in coords])
+    # Climb the n_refine most likely, and any other within reach of being a mode of the
+    # region (a pixel centre is below its peak by up to the pixel's own loss).
+    order = np.argsort(peak_ll)[::-1]
+    near = 2.0 * (peak_ll[order[0]] - peak_ll[order]) <= MODE_DTS + CLIMB_MARGIN
+    starts = [coords[k] for j, k in enumerate(order)
+              if j < n_refine or (near[j] and j < MAX_CLIMBS)]
     if time_bins is None:
         reach = max(float(first.to_instrument(p)[0].to_value(u.deg)) for p in starts)
         fine_bins = default_time_bins(inst, min(reach + FINE_MARGIN, rad))
-    medium_bins = TimeBinning(max(fine_bins.n_bins // 4, 8), "average",
-                              max(fine_bins.n_bins * fine_bins.n_sub // max(
-                                  fine_bins.n_bins // 4, 8), 1))
+    fine, fine_unit, fine_data = ((counts, unit, data) if fine_bins == search_bins
+                                  else binned(fine_bins))
 
-    def pointing(att: Attitude) -> PositionList:
-        return PositionList.from_coords(first.pointing, att)
-
-    def stage(bins: TimeBinning) -> tuple[BurstCounts, UnfoldedResponse, PoissonData]:
-        c = bin_events(events, t0, t1, time_bins=bins, attitude=attitude, max_step=max_step)
-        return c, burst_response(c, pointing, energy=energy, model=model, cache=cache), \
-            c.data(_background_rates(background, c))
-
-    def fitter_at(c: BurstCounts, unit: UnfoldedResponse, data: PoissonData,
-                  src: PointSource) -> SourceFitter:
-        """The fitter of a candidate position, with the light curve seen from there."""
-        return SourceFitter(unit.with_weight(_light_curve_from(light_curve, c, unit, src)
-                                             if isinstance(light_curve, BurstLightCurve)
-                                             else weights(c)), data)
-
-    coarse_unit = burst_response(coarse, cone, energy=energy, model=model, cache=cache)
-    stages = [(coarse, coarse_unit, data), stage(medium_bins), stage(fine_bins)]
-    pixel = np.radians(58.6 / side)
-
-    def climb(c: BurstCounts, unit: UnfoldedResponse, d: PoissonData, src: PointSource,
-              step: float) -> tuple[SkyModel, float, SourceFitter]:
-        f = fitter_at(c, unit, d, src)
+    def climb(src: PointSource) -> tuple[SkyModel, float, SourceFitter]:
+        """Nelder-Mead from ``src``, with the light curve seen from there."""
+        f = SourceFitter(fine_unit.with_weight(
+            _light_curve_from(light_curve, fine, fine_unit, src)
+            if isinstance(light_curve, BurstLightCurve) else weights(fine)), fine_data)
         m = f.maximise(SkyModel((dataclasses.replace(src, free_position=True),)))[0]
-        m = f.fit_positions(m, scale=step)
+        m = f.fit_positions(m, scale=0.5 * pixel)
         return m, f.maximise(m)[1].loglike, f
 
-    def best_of(fits: list[tuple[SkyModel, float, SourceFitter]], n: int
-                ) -> list[PointSource]:
-        """The ``n`` most likely distinct positions (a pixel apart at least)."""
-        out: list[PointSource] = []
-        for m, _, _ in sorted(fits, key=lambda fit: -fit[1]):
-            src = m.sources[0]
-            if all(src.separation(o) > np.degrees(pixel) for o in out):
-                out.append(src)
-        return out[:n]
-
-    # Each stage climbs (Nelder-Mead) from the last one's best positions on its own
-    # likelihood, smooth enough at its bin width for a climb from a pixel away to reach the
-    # right peak, and passes on fewer of them.
-    fits = [climb(*stages[0], PointSource(p), 0.5 * pixel) for p in starts]
-    fits = [climb(*stages[1], src, 0.25 * pixel) for src in best_of(fits, MEDIUM_CANDIDATES)]
-    modes = [climb(*stages[2], src, 0.125 * pixel) for src in best_of(fits, FINE_FITS)]
-    best, best_ll, fitter = max(modes, key=lambda fit: fit[1])
-    fine = stages[2][0]
+    fits = sorted((climb(PointSource(p)) for p in starts), key=lambda fit: -fit[1])
+    # Distinct modes (climbs that met on one peak are one mode), best first.
+    distinct: list[tuple[SkyModel, float, SourceFitter]] = []
+    for fit in fits:
+        if all(fit[0].sources[0].separation(d[0].sources[0]) > np.degrees(1.5 * pixel)
+               for d in distinct):
+            distinct.append(fit)
+    best, best_ll, fitter = distinct[0]
     result = fit_with(fitter, best, errors=True)
     # Other modes (e.g. the mirror image through the axis of a symmetric array): their TS
-    # below the best, at least a pixel and a half away.
-    others = tuple(sorted(
-        ((m.sources[0].position, 2.0 * (best_ll - ll)) for m, ll, _ in modes
-         if m.sources[0].separation(best.sources[0]) > np.degrees(1.5 * pixel)),
-        key=lambda pair: pair[1]))
-    # 3. The region: the likelihood surface around the best fit.
+    # below the best.
+    others = tuple((m.sources[0].position, 2.0 * (best_ll - ll)) for m, ll, _ in distinct[1:])
+    # 3. The region: the likelihood surface around each mode within MODE_DTS of the best,
+    # weighted by its probability (its peak likelihood times its surface's integral).
     region = localise(fitter, result.model, 0, systematic=systematic)
+    regions = [region] + [localise(f, m, 0, systematic=systematic, n_side=MODE_SIDE)
+                          for m, ll, f in distinct[1:] if 2.0 * (best_ll - ll) <= MODE_DTS]
+    posterior = Posterior(tuple(regions))
     pos = result.model.sources[0].position
     th, ph = first.to_instrument(pos)
     return BurstPosition(pos, float(th.to_value(u.deg)), float(ph.to_value(u.deg)), region,
-                         result, tsm, fitter.response, fine, others)
+                         result, score, fitter.response, fine, others, posterior)

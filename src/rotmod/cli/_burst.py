@@ -34,7 +34,6 @@ from rotmod.io.config import load_instrument_config
 from rotmod.io.regions import write_probability_map
 from rotmod.io.tables import write_product_table
 from rotmod.profiles import DEFAULT_MODEL, MODELS
-from rotmod.sources.catalogue import probability_map
 
 
 def register(sub: Any) -> None:
@@ -45,7 +44,7 @@ def register(sub: Any) -> None:
         "stated false-alarm rate), then for each candidate fit the background before and "
         "after it, find its light curve (Bayesian blocks), measure T90/T50, net counts, "
         "peak rate, fluence and peak flux, and localise it with the time-tagged likelihood "
-        "(light curve in the model): a coarse TS map of the visible sky, continuous refits, "
+        "(light curve in the model): a score map of the visible sky, exact refits of its peaks, "
         "the 68 %% and 90 %% regions. Writes per burst OUT_N.fits (the burst's row), "
         "OUT_N_lc.fits (its light-curve blocks), OUT_N_prob.fits (HEALPix probability "
         "map), OUT_N.txt (a GCN-style summary, also printed) and OUT_N.png (light curve "
@@ -101,15 +100,15 @@ def _plot(burst: Burst, path: Any) -> None:
     ax.set_xlabel("time (s)")
     ax.set_ylabel("counts/s (all detectors)")
     ax.legend(fontsize=7)
-    tsm = burst.position.coarse
-    th, ph = tsm.grid.directions()
-    sc = bx.scatter(np.degrees(ph.value), np.degrees(th.value), c=np.ravel(tsm.ts), s=6,
-                    cmap="viridis")
+    score = burst.position.score
+    th, ph = score.grid.directions()
+    sc = bx.scatter(np.degrees(ph.value), np.degrees(th.value), c=score.score, s=1,
+                    cmap="viridis", rasterized=True)
     bx.plot(burst.position.phi, burst.position.theta, "r+", ms=12, label="best")
     bx.set_xlabel("azimuth phi (deg)")
     bx.set_ylabel("off-axis theta (deg)")
-    bx.set_title("TS of the visible sky (coarse map)", fontsize=9)
-    fig.colorbar(sc, ax=bx, label="TS")
+    bx.set_title("score of the visible sky (search map)", fontsize=9)
+    fig.colorbar(sc, ax=bx, label="U / sqrt(I)")
     bx.legend(fontsize=7)
     # The region on the sky: its 68 % and 90 % contours around the best position.
     region = burst.position.region
@@ -203,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
                             overwrite=args.overwrite, command=sys.argv)
         write_product_table(_blocks_table(b), out["_lc.fits"], extname="LIGHTCURVE",
                             overwrite=args.overwrite, command=sys.argv)
-        write_probability_map(probability_map(b.position.region), out["_prob.fits"],
+        write_probability_map(b.position.probability_map(), out["_prob.fits"],
                               overwrite=args.overwrite, command=sys.argv)
         _plot(b, out[".png"])
         say(f"rotmod: {name}: wrote {out['.fits']}, {out['_prob.fits']}, {out['.txt']}, "

@@ -14,6 +14,7 @@ region files, below this package (``docs/architecture.md``: ``io`` is the files 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import Any
 
 import astropy.units as u
@@ -101,24 +102,27 @@ def _nside_for(resolution_deg: float) -> int:
     return 2**order
 
 
-def probability_map(region: Region, *, nside: int | None = None,
-                    order: str = "nested") -> HealpixProbability:
+def probability_map(region: Region | Sequence[Region], *, nside: int | None = None,
+                    order: str = "nested", weights: Any = None) -> HealpixProbability:
     """A localisation region as HEALPix pixel probabilities (ICRS).
 
     The region's density (a probability per point of its tangent-plane square) is evaluated
     at the centre of every pixel of the square, as a density per unit solid angle (linear
     interpolation between the points), times the pixel's area; the probabilities are then
     normalised to sum to 1 (what falls outside the square, where the region has no
-    density, is dropped).
+    density, is dropped).  Several regions (the modes of one position, e.g. a burst's
+    mirror images) are summed with their ``weights``.
 
     Parameters
     ----------
-    region : Region
-        The region of a source on the sky.
+    region : Region or sequence of Region
+        The region of a source on the sky, or the regions of its modes.
     nside : int, optional
         HEALPix resolution; default the coarsest whose pixels are at most ``r68 / 4`` across
-        (``r68``: :meth:`Region.radius` at 68 %).
+        (``r68``: :meth:`Region.radius` at 68 % of the first region).
     order : {"nested", "ring"}
+    weights : sequence of float, optional
+        Probability of each region (default equal); normalised to sum to 1.
 
     Returns
     -------
@@ -127,34 +131,50 @@ def probability_map(region: Region, *, nside: int | None = None,
     Raises
     ------
     ParameterError
-        A region of an instrument-frame source (HEALPix maps are on the sky), or a bad
-        ``nside``.
+        A region of an instrument-frame source (HEALPix maps are on the sky), weights that
+        are not one finite value >= 0 per region with a positive sum, or a bad ``nside``.
     """
     import astropy_healpix as hp  # HEALPix grids' dependency
 
-    if not isinstance(region, Region):
-        raise ParameterError(f"region must be a Region, got {type(region)}")
-    if region.source.frame != "celestial":
-        raise ParameterError(
-            f"region: source {region.source.name or '(unnamed)'!r} is in the instrument frame; "
-            "a HEALPix probability map is on the sky (use a celestial or HEALPix grid)")
+    regions = [region] if isinstance(region, Region) else (
+        list(region) if isinstance(region, Sequence) else [])
+    if not regions or not all(isinstance(r, Region) for r in regions):
+        raise ParameterError(f"region must be a Region or a sequence of them, got {region!r}")
+    for r in regions:
+        if r.source.frame != "celestial":
+            raise ParameterError(
+                f"region: source {r.source.name or '(unnamed)'!r} is in the instrument "
+                "frame; a HEALPix probability map is on the sky (use a celestial or HEALPix "
+                "grid)")
+    w = np.ones(len(regions)) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (len(regions),) or not np.all(np.isfinite(w)) or np.any(w < 0) \
+            or not w.sum() > 0:
+        raise ParameterError(f"weights must be {len(regions)} finite values >= 0 with a "
+                             f"positive sum, got {weights!r}")
+    w = w / w.sum()
     if nside is None:
-        nside = _nside_for(region.radius(0.68) / PIXELS_PER_R68)
+        nside = _nside_for(regions[0].radius(0.68) / PIXELS_PER_R68)
     healpix = hp.HEALPix(nside=nside, order=order, frame=ICRS())  # refuses a bad nside
-    half = float(region.offsets[-1])
-    # Every pixel whose centre may lie in the square: a cone over its corners, plus a pixel.
-    reach = np.degrees(np.arctan(np.sqrt(2.0) * half)) + healpix.pixel_resolution.to_value(
-        u.deg)
-    pixels = np.asarray(healpix.cone_search_skycoord(region.source.position, reach * u.deg),
-                        dtype=np.int64)
-    # Density per tangent-plane area; the gnomonic plane's area differs from solid angle by
-    # (1 + x^2 + y^2)^(3/2), < 1e-4 over a region a few degrees across, left to the
-    # normalisation below.
-    dens = region.density_at(healpix.healpix_to_skycoord(pixels))
-    prob = dens * healpix.pixel_area.to_value(u.sr)
+    pix_parts, prob_parts = [], []
+    for r, weight in zip(regions, w, strict=True):
+        half = float(r.offsets[-1])
+        # Every pixel whose centre may lie in the square: a cone over its corners, plus a
+        # pixel.
+        reach = np.degrees(np.arctan(np.sqrt(2.0) * half)) + \
+            healpix.pixel_resolution.to_value(u.deg)
+        pixels = np.asarray(healpix.cone_search_skycoord(r.source.position, reach * u.deg),
+                            dtype=np.int64)
+        # Density per tangent-plane area; the gnomonic plane's area differs from solid angle
+        # by (1 + x^2 + y^2)^(3/2), < 1e-4 over a region a few degrees across, left to the
+        # normalisation below.
+        dens = r.density_at(healpix.healpix_to_skycoord(pixels))
+        pix_parts.append(pixels)
+        prob_parts.append(weight * dens * healpix.pixel_area.to_value(u.sr))
+    pixels, inverse = np.unique(np.concatenate(pix_parts), return_inverse=True)
+    prob = np.bincount(inverse, weights=np.concatenate(prob_parts), minlength=pixels.size)
     keep = prob > 0
     if not np.any(keep):
         raise ParameterError(f"nside {nside}: no pixel centre falls in the region's square; "
                              "use a larger nside")
     return HealpixProbability(nside, pixels[keep], prob[keep] / prob[keep].sum(), order,
-                              region.source.name)
+                              regions[0].source.name)

@@ -276,7 +276,7 @@ def analyse_burst(
     background_degree : int
         Degree of the background polynomials, >= 0.
     nside : int, optional
-        HEALPix ``nside`` of the coarse map (default from ``b / L``).
+        HEALPix ``nside`` of the search map (default: pixels a quarter of ``b / L``).
     progress : bool or callable, optional
         Progress over the steps.
     cache : dict, optional

@@ -70,7 +70,7 @@ __all__ = ["BurstCounts", "BurstPosition", "ScoreMap", "bin_events", "burst_resp
 #: the instrument's scale in that time; a fast slew can pass a shorter step).
 MAX_ATTITUDE_STEP = 10.0
 #: Off-axis margin (deg) beyond the candidates for the fine bins' sampling: the
-#: coarse pixels are ~b/L across, and a fit moves by a few of them at most.
+#: search map's pixels are b/(4L) across, and a fit moves by a few of them at most.
 FINE_MARGIN = 5.0
 #: Pixels of the score map: at most a quarter of ``b / L``, so that the likelihood's core
 #: (narrower than its fringes, ~``p cos^2(theta) / L`` apart) is sampled.
@@ -406,7 +406,7 @@ def _light_curve_from(light_curve: BurstLightCurve, counts: BurstCounts,
     response summed over the detectors, weight 1): the block's flux.  The summed rate of a
     bright burst carries the mask's modulation of the summed transmission; the blocks'
     net rates taken as the light curve would put it in the model twice (measured: a burst
-    of sqrt(TS) 136 placed 68 deg away, its TS 1100 above the truth's in the coarse map).
+    of sqrt(TS) 136 placed 68 deg away, its TS 1100 above the truth's in a TS map of the sky).
     """
     col = columns_at(unit, positions_of([source]))[:, :, 0].sum(axis=0) * counts.exposure
     edges = light_curve.edges

@@ -501,14 +501,15 @@ def localise_burst(
     radius : float or Quantity
         Radius of the searched cone around the pointing (deg), < 90.
     nside : int, optional
-        HEALPix ``nside`` of the first map (default: pixels about ``2 b / L``,
-        :data:`FIRST_PIXEL`); the levels after it halve the pixels down to ``b / (4 L)``.
+        HEALPix ``nside`` of the search map (default: pixels at most a quarter of ``b / L``,
+        :data:`SEARCH_PIXEL`).
     time_bins : TimeBinning, optional
         Mask-angle bins of the continuous fits (default :func:`default_time_bins` out to
-        the last level's peaks' off-axis angle plus :data:`FINE_MARGIN`); each map's bins
-        are :func:`level_bins` of :func:`default_time_bins` at ``radius``.
+        the starting peaks' off-axis angle plus :data:`FINE_MARGIN`); the search map's bins
+        are :func:`default_time_bins` at ``radius``.
     n_refine : int
-        Distinct peaks of the last map refitted with a continuous position, >= 1.
+        The most likely peaks of the search map refitted with a continuous position, at
+        least (others within reach of a mode too, up to :data:`MAX_CLIMBS`), >= 1.
     systematic : float or Quantity
         Systematic error per axis added to the region (deg if plain), >= 0.
     progress : bool or callable, optional

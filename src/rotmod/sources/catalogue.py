@@ -26,6 +26,7 @@ from rotmod.io.catalogue import SourceCatalogue, read_catalogue
 from rotmod.io.regions import HealpixProbability
 from rotmod.response.columns import position_grid
 from rotmod.response.operator import ResponseOperator
+from rotmod.sky.healpix import cone_pixels
 from rotmod.sources.localisation import Region
 from rotmod.sources.model import PointSource, SkyModel
 
@@ -162,8 +163,8 @@ def probability_map(region: Region | Sequence[Region], *, nside: int | None = No
         # pixel.
         reach = np.degrees(np.arctan(np.sqrt(2.0) * half)) + \
             healpix.pixel_resolution.to_value(u.deg)
-        pixels = np.asarray(healpix.cone_search_skycoord(r.source.position, reach * u.deg),
-                            dtype=np.int64)
+        c = r.source.position.icrs
+        pixels = cone_pixels(nside, order, c.ra.deg, c.dec.deg, reach)
         # Density per tangent-plane area; the gnomonic plane's area differs from solid angle
         # by (1 + x^2 + y^2)^(3/2), < 1e-4 over a region a few degrees across, left to the
         # normalisation below.

@@ -351,11 +351,13 @@ class SourceFitter:
     # -- positions ------------------------------------------------------------------------
 
     def fit_positions(self, model: SkyModel, *, only: list[int] | None = None,
-                      scale: float | None = None) -> SkyModel:
+                      scale: float | None = None, precision: float = 1e-4) -> SkyModel:
         """Fit each free position (one source at a time, all amplitudes re-maximised).
 
         ``only`` restricts the fit to those source indices; ``scale`` is the first step
-        (rad; default a quarter of the instrument's angular scale ``b / L``).
+        (rad; default a quarter of the instrument's angular scale ``b / L``);
+        ``precision`` the simplex's final size as a fraction of it (and, times 0.1, the
+        tolerance in ``ln L``).
         """
         step = 0.25 * geometric_scale(self.response) if scale is None else float(scale)
         for k, src in enumerate(model.sources):
@@ -384,13 +386,14 @@ class SourceFitter:
             for _ in range(6):
                 simplex = np.array([x, x + np.array([size, 0.0]), x + np.array([0.0, size])])
                 res = minimize(cost, x, method="Nelder-Mead",
-                               options={"initial_simplex": simplex, "xatol": 1e-4 * step,
-                                        "fatol": 1e-5, "maxiter": 400})
+                               options={"initial_simplex": simplex,
+                                        "xatol": precision * step,
+                                        "fatol": 0.1 * precision, "maxiter": 400})
                 moved_by = float(np.hypot(*(res.x - x)))
                 x = res.x
-                if moved_by < 1e-3 * step:
+                if moved_by < 10.0 * precision * step:
                     break
-                size = max(0.25 * size, 1e-3 * step)
+                size = max(0.25 * size, 10.0 * precision * step)
             model = self.maximise(moved(x))[0]
         return model
 

@@ -282,6 +282,16 @@ def report(data: dict) -> str:
                                len(sel)))
             L.append(frac_line(f"  68 %, sqrt TS {lab}", sum(r["contains68"] for r in sel),
                                len(sel)))
+    # Short bursts (the truth's T90 under half a turn) see part of the rotation only.
+    half = 0.5 * setup()[0].rotation_period
+    L.append(f"  by the truth's T90 (half a turn is {half:g} s):")
+    for lab, sel in ((f"T90 < {half:g} s", [r for r in ok if r["true_t90"] < half]),
+                     (f"T90 >= {half:g} s", [r for r in ok if r["true_t90"] >= half])):
+        for lo, hi in ((0, 20), (20, 1e9)):
+            part = [r for r in sel if lo <= r["sqrt_ts"] < hi]
+            tag = f"sqrt TS < {hi:g}" if lo == 0 else f"sqrt TS >= {lo:g}"
+            L.append(frac_line(f"  90 %, {lab}, {tag}", sum(r["contains90"] for r in part),
+                               len(part)))
     multi = [r for r in ok if len(r.get("posterior", {}).get("modes", [1])) > 1]
     L.append(frac_line("region of more than one mode", len(multi), len(ok)))
     L.append(frac_line("best-mode region alone holds the truth (90 %)",
@@ -375,8 +385,10 @@ def report(data: dict) -> str:
 
     L.append("")
     pair = [r for r in ok if "nolc" in r and "error" not in r["nolc"]]
-    L.append(f"Light curve in the model vs constant (the same {len(pair)} bursts)")
     nerr = [r for r in ok if "nolc" in r and "error" in r["nolc"]]
+    L.append(f"Light curve in the model vs constant (the same {len(pair)} bursts)"
+             if pair or nerr else "Light curve in the model vs constant: not run here "
+             "(--no-lc-subset 0); benchmarks/bursts_lightcurve_bias.py measures it")
     for r in nerr:
         L.append(f"  no-L(t) ERROR #{r['index']}: {r['nolc']['error']}")
     if pair:

@@ -349,8 +349,8 @@ class BurstPosition:
         within a few units of TS (the mirror image of a symmetric array, a short burst's
         partial turn) is a real ambiguity, stated in the summary.
     posterior : Posterior
-        The probability over the cone: the surfaces of the best position and of every other
-        mode within :data:`MODE_DTS`, and the score map's pixels elsewhere.
+        The position's probability: the surfaces of the best position and of every other
+        refitted mode within :data:`MODE_DTS` (nothing outside their squares).
         :meth:`contains` and :meth:`probability_map` use it.
     """
 
@@ -381,8 +381,8 @@ class BurstPosition:
         return float(self.fit.model.sources[0].flux)
 
     def contains(self, position: SkyCoord, containment: float = 0.9) -> bool:
-        """Whether ``position`` lies in the region of ``containment`` (every mode and the
-        rest of the cone included: :attr:`posterior`)."""
+        """Whether ``position`` lies in the region of ``containment`` (every refitted mode
+        included: :attr:`posterior`)."""
         return self.posterior.contains(position, containment)
 
     def probability_map(self, nside: int | None = None) -> HealpixProbability:

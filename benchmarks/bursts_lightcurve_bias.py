@@ -75,8 +75,8 @@ def fits(seed: int, inst, att, truth, pulse: tuple[float, ...]) -> dict:
                             scale=0.125 * geometric_scale(inst), precision=1e-3)
         th, ph = att.to_instrument(m.sources[0].position)
         out[name] = (float(th.to_value(u.deg)), float(ph.to_value(u.deg)))
-        out["ts"] = out.get("ts", 2.0 * (f.maximise(m)[1].loglike
-                                         - f.maximise(SkyModel(()))[1].loglike))
+        if name == "lc":
+            out["ts"] = 2.0 * (f.maximise(m)[1].loglike - f.maximise(SkyModel(()))[1].loglike)
     return out
 
 

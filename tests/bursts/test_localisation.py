@@ -11,6 +11,8 @@ from scipy.stats import chi2
 from rotmod.binning import TimeBinning
 from rotmod.bursts import (
     analyse_burst,
+    analysis,
+    durations,
     fit_background,
     norris_pulse,
     search,
@@ -184,3 +186,27 @@ def test_a_gap_in_the_data_has_no_exposure(burst_events):
     in_gap = (c.edges[:-1] >= 52.0) & (c.edges[1:] <= 53.0)
     assert np.all(c.exposure[in_gap] == 0) and np.all(c.counts[:, in_gap] == 0)
     np.testing.assert_allclose(c.exposure.sum(), c.edges[-1] - c.edges[0] - 1.0)
+
+
+def test_durations_window_reaches_twice_the_burst_or_falls_back_to_the_fit_window(
+        burst_events, monkeypatch):
+    _, ev = burst_events
+    bkg, lc, window, dur, dur_window = analysis._measurements(ev, 50.0, 55.0, 1)
+    s0, s1 = lc.interval
+    reach = max(analysis.WINDOW_MARGIN, analysis.DURATION_MARGIN * (s1 - s0))
+    assert dur_window == (max(ev.t_start, s0 - reach), min(ev.t_stop, s1 + reach))
+    assert dur_window[0] <= window[0] and dur_window[1] >= window[1]
+    assert dur == durations(ev, dur_window, bkg, light_curve=lc)
+    # Where the wide window fails durations' checks, the fit window is used.
+    calls = []
+
+    def strict(events, win, *args, **kwargs):
+        calls.append(win)
+        if len(calls) == 1:
+            raise ParameterError("window holds no burst")
+        return durations(events, win, *args, **kwargs)
+
+    monkeypatch.setattr(analysis, "durations", strict)
+    *_, dur2, dur_window2 = analysis._measurements(ev, 50.0, 55.0, 1)
+    assert calls == [dur_window, window] and dur_window2 == window
+    assert dur2 == durations(ev, window, bkg, light_curve=lc)

@@ -72,7 +72,7 @@ class Burst:
     interval : (float, float)
         The burst's extent from the light curve (s): first to last block above background.
     window : (float, float)
-        The window of the position fit and the durations (s).
+        The window of the position fit (s).
     background : Background
     light_curve : BurstLightCurve
     durations : Durations
@@ -85,6 +85,9 @@ class Burst:
         Photon fluence (photons/cm^2) of the burst, and its error.
     mjdref : float
         MJD of ``t = 0`` of the events.
+    durations_window : (float, float)
+        The window of the durations (s): wider than :attr:`window` (see
+        :func:`analyse_burst`).
     """
 
     interval: tuple[float, float]
@@ -99,6 +102,7 @@ class Burst:
     fluence: float
     fluence_err: float
     mjdref: float
+    durations_window: tuple[float, float]
 
     @property
     def trigger_time(self) -> Time:
@@ -262,9 +266,10 @@ def _measurements(events: EventList, a: float, b: float, degree: int,
     margin = max(WINDOW_MARGIN, s1 - s0)
     window = (max(t0, s0 - margin), min(t1, s1 + margin))
     # The durations' window is wider, so that a long pulse's tail below the blocks'
-    # threshold still counts in T90 (measured: T90 of decays of 10-15 s short by 20-25 %
-    # in the fit window); where the wider window's excess is too faint to pass durations'
-    # test, the fit window.
+    # threshold counts in T90 (measured: T90 of decays of 10-15 s short by 20-25 % in the
+    # fit window).  Beyond BACKGROUND_GAP it overlaps the background's own data, where a
+    # tail is partly absorbed by the polynomial.  Where the wider window fails durations'
+    # checks (its excess too faint, or no background at its ends), the fit window.
     reach = max(WINDOW_MARGIN, DURATION_MARGIN * (s1 - s0))
     wide = (max(t0, s0 - reach), min(t1, s1 + reach))
     try:
@@ -345,7 +350,8 @@ def analyse_burst(
         raise ParameterError(f"interval {a:g}..{b:g} s lies outside the data ({lo:g}..{hi:g} s)")
     update, close = progress_callbacks(progress, 5, "burst", "step")
     try:
-        bkg, lc, window, dur, _ = _measurements(events, a, b, background_degree, update)
+        bkg, lc, window, dur, dur_window = _measurements(events, a, b, background_degree,
+                                                         update)
         s0, s1 = lc.interval
         pos = localise_burst(events, window, bkg, lc if light_curve else _boxcar(s0, s1),
                              energy=e_kev, model=model, attitude=attitude,
@@ -366,4 +372,4 @@ def analyse_burst(
     peak = _peak_weight(lc, dur.peak_timescale) if light_curve else 1.0
     return Burst((float(s0), float(s1)), window, bkg, lc, dur, pos, e_kev, flux * peak,
                  flux_err * peak, flux * exposure_weight, flux_err * exposure_weight,
-                 float(events.meta.get("mjdref", 0.0)))
+                 float(events.meta.get("mjdref", 0.0)), dur_window)

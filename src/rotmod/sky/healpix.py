@@ -50,10 +50,22 @@ def cone_pixels(nside: int, order: str, ra: float, dec: float, radius: float) ->
     whose centre is within ``radius`` plus 1.1 pixel sizes (a pixel's centre is at most
     1.046 of ``sqrt(4 pi / n_pix)`` from its corners at any ``nside``); at ``nside``, a pixel
     whose centre is in the cone is in, and one in the band outside it is in if its boundary
-    (:data:`_EDGE_STEP` arcs per side) comes within ``radius``, or it holds the centre.
+    (:data:`_EDGE_STEP` great-circle arcs per side, the curved edge to ~1e-4 of a pixel)
+    comes within ``radius``, or it holds the centre.  ``order`` is ``"nested"`` or
+    ``"ring"`` (any case), ``nside`` a power of 2.
     """
     from astropy_healpix import core  # optional (HEALPix grids)
 
+    nside = as_int(nside, "nside", 1)
+    if nside & (nside - 1):
+        raise ParameterError(f"nside must be a power of 2, got {nside}")
+    order = str(order).lower()
+    if order not in ("nested", "ring"):
+        raise ParameterError(f"order must be 'nested' or 'ring', got {order!r}")
+    ra, dec, radius = (float(v) for v in (ra, dec, radius))
+    if not (np.isfinite(ra) and -90.0 <= dec <= 90.0 and 0.0 <= radius <= 180.0):
+        raise ParameterError(f"ra must be finite, dec in [-90, 90] and radius in [0, 180] "
+                             f"deg, got {ra!r}, {dec!r}, {radius!r}")
     p = _unit(np.float64(ra), np.float64(dec))
     r = np.radians(radius)
     pix, n = np.arange(12, dtype=np.int64), 1

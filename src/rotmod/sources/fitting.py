@@ -360,6 +360,9 @@ class SourceFitter:
         tolerance in ``ln L``).
         """
         step = 0.25 * geometric_scale(self.response) if scale is None else float(scale)
+        if not 0.0 < precision < 1.0:
+            raise ParameterError(f"precision must be in (0, 1) (a fraction of the first "
+                                 f"step), got {precision!r}")
         for k, src in enumerate(model.sources):
             if not src.free_position or (only is not None and k not in only):
                 continue

@@ -19,7 +19,8 @@ r90 = 2.146 sigma (a 2-D Gaussian's 90 % radius, sigma the scatter per axis of t
 with L(t)).  Printed and written to ``benchmarks/results/bursts_lightcurve_bias.txt``.
 
     NUMBA_NUM_THREADS=1 python benchmarks/bursts_lightcurve_bias.py --n 40
-    NUMBA_NUM_THREADS=1 python benchmarks/bursts_lightcurve_bias.py --n 40 --decay 0.5 --peak 60
+    NUMBA_NUM_THREADS=1 python benchmarks/bursts_lightcurve_bias.py --n 300 --decay 0.5 \
+        --peak 60 --jobs 2
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import dataclasses
 import os
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import astropy.units as u
@@ -42,7 +44,7 @@ THETA, PHI = 30.0, 70.0
 PULSE = (100.0, 0.1, 1.5, 30.0)   # start (s), rise (s), decay (s), peak (photons/s/face)
 
 
-def fits(seed: int, inst, att, truth, pulse: tuple[float, ...]) -> dict:
+def fits(seed: int, pulse: tuple[float, ...]) -> dict:
     from rotmod.bursts.analysis import _boxcar, _measurements
     from rotmod.bursts.inject import simulate_burst
     from rotmod.bursts.localisation import (
@@ -57,6 +59,8 @@ def fits(seed: int, inst, att, truth, pulse: tuple[float, ...]) -> dict:
     from rotmod.sources.fitting import SourceFitter, geometric_scale
     from rotmod.sources.model import PointSource, SkyModel
 
+    inst, att = cal.setup()
+    truth = att.to_sky(THETA * u.deg, PHI * u.deg)
     lc = cal.light_curve([list(pulse)])
     ev = simulate_burst(inst, truth, lc, t_start=cal.T_START, t_stop=cal.T_STOP,
                         background=cal.BACKGROUND, energy=cal.ENERGY, attitude=att, seed=seed)
@@ -85,16 +89,18 @@ def main() -> int:
     p.add_argument("--n", type=int, default=40)
     p.add_argument("--decay", type=float, default=PULSE[2], help="decay time (s)")
     p.add_argument("--peak", type=float, default=PULSE[3], help="peak (photons/s/face)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="worker processes (set NUMBA_NUM_THREADS=1 with more than one)")
     p.add_argument("--out", type=Path, default=OUT, help="appended to")
     args = p.parse_args()
     pulse = (PULSE[0], PULSE[1], args.decay, args.peak)
-    inst, att = cal.setup()
-    truth = att.to_sky(THETA * u.deg, PHI * u.deg)
     recs, load, t0 = [], [], time.perf_counter()
-    for s in range(args.n):
-        load.append(os.getloadavg()[0])
-        recs.append(fits(1000 + s, inst, att, truth, pulse))
-        print(f"{s + 1}/{args.n} ({time.perf_counter() - t0:.0f} s)", recs[-1], flush=True)
+    with ProcessPoolExecutor(args.jobs) as pool:
+        for s, rec in enumerate(pool.map(fits, range(1000, 1000 + args.n),
+                                         [pulse] * args.n)):
+            load.append(os.getloadavg()[0])
+            recs.append(rec)
+            print(f"{s + 1}/{args.n} ({time.perf_counter() - t0:.0f} s)", rec, flush=True)
     off = {}
     for name in ("lc", "const"):
         th = np.array([r[name][0] for r in recs])
@@ -106,7 +112,8 @@ def main() -> int:
     lines = [
         "Light curve in the model or not (issue 22): bias of the position over injections",
         f"  burst: Norris pulse rise {pulse[1]} s, decay {pulse[2]} s, peak {pulse[3]} "
-        f"photons/s/face at theta {THETA:g}, phi {PHI:g} deg; 4 s turn; {args.n} injections; "
+        f"photons/s/face at theta {THETA:g}, phi {PHI:g} deg; 4 s turn; {args.n} injections "
+        f"({args.jobs} processes); "
         f"median sqrt TS {np.median(np.sqrt([r['ts'] for r in recs])):.1f}",
         f"  scatter per axis (with L(t)) {sigma:.4f} deg -> r90 {r90:.4f} deg; load average "
         f"(1 min) median {np.median(load):.2f} on {os.cpu_count()} cores",

@@ -45,6 +45,7 @@ from rotmod._validate import as_angle_scalar, as_int
 from rotmod.binning import TimeBinning
 from rotmod.bursts.measure import Background, BurstLightCurve
 from rotmod.bursts.posterior import Posterior
+from rotmod.conventions import source_direction
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
 from rotmod.io.regions import HealpixProbability
@@ -137,6 +138,11 @@ class BurstCounts:
     def centres(self) -> np.ndarray:
         """Bin centres (s)."""
         return 0.5 * (self.edges[:-1] + self.edges[1:])
+
+    @property
+    def first_attitude(self) -> Attitude:
+        """The attitude of the window's first time bin (the searched cone's centre)."""
+        return self.attitudes[int(self.segment[0])]
 
     def data(self, background_rate: np.ndarray) -> PoissonData:
         """The counts with their exposure and ``background_rate`` ``(n_det, n_time)`` (1/s)
@@ -291,15 +297,15 @@ def search_map(counts: BurstCounts, fitter: SourceFitter, nside: int, radius: fl
     evaluate each pixel's column.
     """
     cache = {} if cache is None else cache
-    first = counts.attitudes[int(counts.segment[0])]
+    first = counts.first_attitude
     mu0 = fitter.expected(fitter.maximise(SkyModel(()))[0])
     e = counts.exposure[None, :]
     safe = np.where(mu0 > 0, mu0, 1.0)
     resid = np.where(mu0 > 0, e * (counts.counts / safe - 1.0), 0.0)
     info = np.where(mu0 > 0, e ** 2 / safe, 0.0)
     ops = []
-    for att in counts.attitudes:
-        grid = HealpixGrid(nside, first.ra, first.dec, radius, att)
+    grids = [HealpixGrid(nside, first.ra, first.dec, radius, att) for att in counts.attitudes]
+    for att, grid in zip(counts.attitudes, grids, strict=True):
         key = _key("search", counts, att, grid, model, energy)
         if key not in cache:
             cache[key] = _search_operators(counts, grid, model, energy)
@@ -310,7 +316,7 @@ def search_map(counts: BurstCounts, fitter: SourceFitter, nside: int, radius: fl
     i_n = UnfoldedResponse([o[1] for o in ops], counts.segment, counts.phase, w ** 2,
                            counts.edges).adjoint(info)
     score = np.where(i_n > 0, u_n / np.sqrt(np.where(i_n > 0, i_n, 1.0)), np.nan)
-    return ScoreMap(HealpixGrid(nside, first.ra, first.dec, radius, first), score)
+    return ScoreMap(grids[int(counts.segment[0])], score)
 
 
 def search_nside(response_scale: float) -> int:
@@ -393,8 +399,7 @@ class BurstPosition:
 def _peaks(theta: np.ndarray, phi: np.ndarray, values: np.ndarray, apart: float, n: int
            ) -> np.ndarray:
     """Indices of the ``n`` highest values that are the highest within ``apart`` (rad)."""
-    v = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)],
-                 axis=1)
+    v = source_direction(theta, phi)
     near = np.cos(apart)
     t = np.nan_to_num(values, nan=-np.inf)
     picked: list[int] = []
@@ -559,14 +564,14 @@ def localise_burst(
     # that resolve the modulation out to the cone's edge.
     def binned(bins: TimeBinning) -> tuple[BurstCounts, UnfoldedResponse, PoissonData]:
         c = bin_events(events, t0, t1, time_bins=bins, attitude=attitude, max_step=max_step)
-        first = c.attitudes[int(c.segment[0])]
-        unit = burst_response(c, lambda att: PositionList.from_coords(first.pointing, att),
+        pointing = c.first_attitude.pointing
+        unit = burst_response(c, lambda att: PositionList.from_coords(pointing, att),
                               energy=energy, model=model, cache=cache)
         return c, unit, c.data(_background_rates(background, c))
 
     search_bins = default_time_bins(inst, rad)
     counts, unit, data = binned(search_bins)
-    first = counts.attitudes[int(counts.segment[0])]
+    first = counts.first_attitude
     w = weights(counts)
     null_fitter = SourceFitter(unit.with_weight(w), data)
     score = search_map(counts, null_fitter, side, rad, w, energy=energy, model=model,

@@ -32,6 +32,7 @@ from rotmod.sources.localisation import Region
 
 __all__ = ["Posterior"]
 
+
 def _covers(region: Region, positions: SkyCoord) -> np.ndarray:
     """Whether each of ``positions`` lies in ``region``'s square."""
     x, y = region.tangent(positions)
@@ -63,6 +64,7 @@ class Posterior:
 
     squares: tuple[Region, ...]
     square_probability: np.ndarray = field(init=False)
+    #: Each square's density restricted to the points it owns.
     _owned: tuple[np.ndarray, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -79,7 +81,7 @@ class Posterior:
                     mine &= ~_covers(earlier, points).reshape(r.ts.shape)
             step = float(r.offsets[1] - r.offsets[0])
             t = np.where(mine & np.isfinite(r.ts), r.ts, -np.inf)
-            owned.append(mine)
+            owned.append(np.where(mine, r.density, 0.0))
             mass.append(float(np.sum(np.exp(0.5 * (t - ts0)))) * step ** 2)
         object.__setattr__(self, "squares", squares)
         object.__setattr__(self, "square_probability", np.array(mass) / sum(mass))
@@ -88,7 +90,7 @@ class Posterior:
     def _point_probability(self, k: int) -> np.ndarray:
         """Probability of each point of square ``k`` (0 where an earlier square owns it);
         its density (with the systematic term) restricted to its own points."""
-        d = np.where(self._owned[k], self.squares[k].density, 0.0)
+        d = self._owned[k]
         total = d.sum()
         return d * (self.square_probability[k] / total) if total > 0 else d
 
@@ -123,7 +125,7 @@ class Posterior:
             if _covers(r, position)[0]:
                 # The square's density (linear between its points, as Region.contains),
                 # restricted to the points it owns.
-                owned = float(np.sum(np.where(self._owned[k], r.density, 0.0)))
+                owned = float(self._owned[k].sum())
                 return float(self.square_probability[k] * r.density_at(position)[0] / owned) \
                     if owned > 0 else 0.0
         return 0.0
@@ -145,7 +147,7 @@ class Posterior:
         """The probability on HEALPix pixels (ICRS): every square's density at the pixel
         centres, weighted by its probability (``nside`` default: see
         :func:`rotmod.sources.catalogue.probability_map`, from the best square)."""
-        own = tuple(dataclasses.replace(r, density=np.where(o, r.density, 0.0), levels={})
+        own = tuple(dataclasses.replace(r, density=o, levels={})
                     for r, o in zip(self.squares, self._owned, strict=True))
         return probability_map(own, nside=nside, order=order,
                                weights=[p / max(float(r.density.sum()), 1e-300) for p, r in

@@ -18,6 +18,7 @@ import numpy as np
 from astropy.coordinates import ICRS, SkyCoord
 
 from rotmod._validate import as_angle_scalar, as_int
+from rotmod.conventions import source_direction
 from rotmod.errors import ParameterError
 from rotmod.limits import check_memory
 from rotmod.sky.attitude import Attitude
@@ -32,8 +33,8 @@ _EDGE_STEP = 16
 
 
 def _unit(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
-    lon, lat = np.radians(lon), np.radians(lat)
-    return np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], -1)
+    """Unit vectors of longitudes and latitudes (deg): the source direction at colatitude."""
+    return source_direction(np.radians(90.0 - np.asarray(lat)), np.radians(lon))
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -190,7 +190,7 @@ def truth_diagnostic(burst, truth) -> dict:
     in the fine fit's own bins and response: ``dts_truth < 0`` means the fit missed a
     higher maximum (at the truth); for a 2-D Wilks surface the truth is in the 90 % region
     when ``dts_truth < 4.61``."""
-    from rotmod.bursts.localisation import _background_rates, _light_curve_from
+    from rotmod.bursts.localisation import _background_rates, burst_pulses
     from rotmod.sources.fitting import SourceFitter
     from rotmod.sources.model import PointSource, SkyModel
     try:
@@ -199,8 +199,11 @@ def truth_diagnostic(burst, truth) -> dict:
         data = bp.counts.data(rates)
         ll_best = SourceFitter(bp.response, data).maximise(bp.fit.model)[1].loglike
         src = PointSource(truth)
-        w = _light_curve_from(burst.light_curve, bp.counts, bp.response.with_weight(None), src)
-        fitter = SourceFitter(bp.response.with_weight(w), data)
+        unit = bp.response.with_weight(None)
+        w = burst_pulses(burst.light_curve, bp.counts, burst.background, unit, src,
+                         burst_pulses(burst.light_curve, bp.counts, burst.background)
+                         ).shape(bp.counts.edges)
+        fitter = SourceFitter(unit.with_weight(w), data)
         ll_true = fitter.maximise(SkyModel((src,)))[1].loglike
         return {"dts_truth": float(2.0 * (ll_best - ll_true))}
     except Exception as exc:

@@ -874,11 +874,16 @@ def norris_pulse(t: Any, start: float, rise: float, decay: float,
     tau1 = as_scalar(rise, "rise", u.s, lo=0.0, lo_open=True)
     tau2 = as_scalar(decay, "decay", u.s, lo=0.0, lo_open=True)
     amp = as_scalar(amplitude, "amplitude", lo=0.0)
-    dt = tt - ts
+    return amp * norris_shape(tt - ts, tau1, tau2)
+
+
+def norris_shape(dt: np.ndarray, rise: Any, decay: Any) -> np.ndarray:
+    """:func:`norris_pulse` of peak 1 at times ``dt`` after its start (unchecked; ``rise``
+    and ``decay`` may be arrays that broadcast with ``dt``)."""
     after = dt > 0
     safe = np.where(after, dt, 1.0)
-    value = amp * np.exp(2.0 * np.sqrt(tau1 / tau2) - tau1 / safe - safe / tau2)
-    return np.where(after, value, 0.0)
+    return np.where(after, np.exp(2.0 * np.sqrt(rise / decay) - rise / safe - safe / decay),
+                    0.0)
 
 
 def true_durations(rate_fn: Callable[[np.ndarray], Any], t0: float, t1: float,

@@ -49,8 +49,8 @@ def fits(seed: int, pulse: tuple[float, ...]) -> dict:
     from rotmod.bursts.inject import simulate_burst
     from rotmod.bursts.localisation import (
         _background_rates,
-        _light_curve_from,
         bin_events,
+        burst_pulses,
         burst_response,
         default_time_bins,
     )
@@ -72,7 +72,9 @@ def fits(seed: int, pulse: tuple[float, ...]) -> dict:
     data = counts.data(_background_rates(bkg, counts))
     src = dataclasses.replace(PointSource(truth), free_position=True)
     out = {}
-    for name, w in (("lc", _light_curve_from(blocks, counts, unit, PointSource(truth))),
+    base = burst_pulses(blocks, counts, bkg)
+    seen = burst_pulses(blocks, counts, bkg, unit, PointSource(truth), base)
+    for name, w in (("lc", seen.shape(counts.edges)),
                     ("const", _boxcar(*blocks.interval)(counts.edges))):
         f = SourceFitter(unit.with_weight(w), data)
         m = f.fit_positions(f.maximise(SkyModel((src,)))[0],

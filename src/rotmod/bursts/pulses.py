@@ -124,20 +124,54 @@ def _unpack(theta: np.ndarray) -> tuple[float, np.ndarray]:
     return float(np.exp(theta[0])), _norris_of(theta[1:].reshape(-1, 4))
 
 
-def _model(theta: np.ndarray, t: np.ndarray, g: np.ndarray, b: np.ndarray) -> np.ndarray:
-    beta, pulses = _unpack(theta)
-    lc = np.zeros_like(t)
-    for s, r, d, a in pulses:
-        lc += a * norris_shape(t - s, r, d)
-    return beta * b + g * lc
+def _model(theta: np.ndarray, t: np.ndarray, g: np.ndarray, b: np.ndarray,
+           grad: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """Expected counts, and with ``grad`` their derivatives ``(n_par, n_bins)`` in the fit's
+    parameters (chain rule through :func:`_norris_of`)."""
+    beta = float(np.exp(theta[0]))
+    p = theta[1:].reshape(-1, 4)
+    pulses = _norris_of(p)
+    mu = beta * b
+    d = np.zeros((theta.size, t.size)) if grad else None
+    if grad:
+        d[0] = beta * b
+    for j, (s, rise, decay, a) in enumerate(pulses):
+        lc = a * norris_shape(t - s, rise, decay)
+        mu = mu + g * lc
+        if not grad:
+            continue
+        dt = np.where(t > s, t - s, 1.0)
+        k = 1.0 / (1.0 + np.exp(-p[j, 2]))
+        m = 0.25 * (1.0 / k ** 2 - 1.0)
+        w = np.exp(p[j, 1])
+        # d ln f / d(start, rise, decay) of f = exp(2 m - rise / dt - dt / decay).
+        d_s = -rise / dt ** 2 + 1.0 / decay
+        d_r = 1.0 / np.sqrt(rise * decay) - 1.0 / dt
+        d_d = -m / decay + dt / decay ** 2
+        # (start, rise, decay) as functions of (peak, ln w, k): decay = w k, rise = m^2
+        # decay, start = peak - m decay, with dm/dk = -1 / (2 k^3).
+        dm = -0.5 / k ** 3
+        dlnw = d_r * rise + d_d * decay - d_s * m * decay
+        dk = d_r * (2.0 * m * dm * w * k + m * m * w) + d_d * w - d_s * (dm * w * k + m * w)
+        gl = g * lc
+        d[1 + 4 * j] = gl * d_s
+        d[2 + 4 * j] = gl * dlnw
+        d[3 + 4 * j] = gl * dk * k * (1.0 - k)
+        d[4 + 4 * j] = gl
+    return mu, d
 
 
 def _cost(theta: np.ndarray, t: np.ndarray, g: np.ndarray, b: np.ndarray,
-          y: np.ndarray) -> float:
-    mu = _model(theta, t, g, b)
+          y: np.ndarray) -> tuple[float, np.ndarray]:
+    """``sum mu - y ln mu`` (the negative Poisson ``ln L`` up to a constant) and its
+    gradient."""
+    mu, d = _model(theta, t, g, b, grad=True)
     if np.any(mu[y > 0] <= 0):
-        return np.inf
-    return float(mu.sum() - np.sum(y[y > 0] * np.log(mu[y > 0])))
+        return np.inf, np.zeros(theta.size)
+    counted = y > 0
+    resid = np.ones_like(mu)
+    resid[counted] -= y[counted] / mu[counted]
+    return float(mu.sum() - np.sum(y[counted] * np.log(mu[counted]))), d @ resid
 
 
 def _fit(theta0: np.ndarray, t: np.ndarray, g: np.ndarray, b: np.ndarray, y: np.ndarray,
@@ -147,8 +181,8 @@ def _fit(theta0: np.ndarray, t: np.ndarray, g: np.ndarray, b: np.ndarray, y: np.
         (span[0], span[1]), (np.log(WIDTH_RANGE[0]), np.log(WIDTH_RANGE[1])), (-5.0, 5.0),
         (-30.0, 30.0)] * n
     theta0 = np.clip(theta0, [lo for lo, _ in bounds], [hi for _, hi in bounds])
-    res = minimize(_cost, theta0, args=(t, g, b, y), method="L-BFGS-B", bounds=bounds,
-                   options={"maxiter": 500})
+    res = minimize(_cost, theta0, args=(t, g, b, y), method="L-BFGS-B", jac=True,
+                   bounds=bounds, options={"maxiter": 500})
     return res.x, float(res.fun)
 
 
@@ -212,7 +246,7 @@ def fit_pulses(edges: np.ndarray, counts: np.ndarray, background: np.ndarray,
 
     def excess_block(theta: np.ndarray | None) -> int:
         """The burst block with the largest excess of counts over ``theta``'s model."""
-        mu = beta0 * b if theta is None else _model(theta, t, g, b)
+        mu = beta0 * b if theta is None else _model(theta, t, g, b)[0]
         k = np.clip(np.searchsorted(bk.edges, t, side="right") - 1, 0, bk.counts.size - 1)
         inside = (t >= bk.edges[0]) & (t < bk.edges[-1])
         ex = np.bincount(k[inside], weights=(y - mu)[inside], minlength=bk.counts.size)
@@ -236,7 +270,7 @@ def fit_pulses(edges: np.ndarray, counts: np.ndarray, background: np.ndarray,
         amp = max(float(bk.net_rate[k]), 1e-3) / r_mean
         if theta is not None:
             # Only the excess not yet modelled.
-            mu_k = _model(theta, t, g, b)
+            mu_k = _model(theta, t, g, b)[0]
             sel = (t >= bk.edges[k]) & (t < bk.edges[k + 1])
             amp = max(float((y[sel] - mu_k[sel]).sum() / max(g[sel].sum(), 1e-12)), 1e-3)
         trial, trial_cost = None, np.inf

@@ -225,14 +225,11 @@ def _boxcar(t0: float, t1: float) -> Callable[[np.ndarray], np.ndarray]:
     return weights
 
 
-def _peak_weight(light_curve: BurstLightCurve, timescale: float) -> float:
-    """The highest mean of ``L`` over ``timescale`` seconds (``L`` = 1 in the brightest
-    block)."""
-    t0, t1 = light_curve.interval
-    step = min(timescale / 16.0, (t1 - t0) / 16.0)
-    edges = np.arange(t0, t1 + step, step)
-    w = light_curve.shape(edges)
-    n = max(round(timescale / step), 1)
+def _peak_weight(weight: np.ndarray, edges: np.ndarray, timescale: float) -> float:
+    """The highest mean over ``timescale`` seconds of the light curve ``weight`` of the fit
+    (1 at its peak) in its bins of ``edges`` (equal widths: the mask-angle bins)."""
+    n = max(round(timescale / float(edges[1] - edges[0])), 1)
+    w = np.asarray(weight, dtype=float)
     if w.size <= n:
         return float(w.mean())
     c = np.concatenate([[0.0], np.cumsum(w)])
@@ -369,7 +366,7 @@ def analyse_burst(
     c = pos.counts
     w = pos.response.weight
     exposure_weight = float(np.sum(w * c.exposure))
-    peak = _peak_weight(lc, dur.peak_timescale) if light_curve else 1.0
+    peak = _peak_weight(w, c.edges, dur.peak_timescale)
     return Burst((float(s0), float(s1)), window, bkg, lc, dur, pos, e_kev, flux * peak,
                  flux_err * peak, flux * exposure_weight, flux_err * exposure_weight,
                  float(events.meta.get("mjdref", 0.0)), dur_window)

@@ -5,8 +5,9 @@ bins (:func:`bin_events`); the model of bin ``k`` of detector ``d`` is
 
     mu[d, k] = E_k (F w_k P_j(k)[d, t(k), n] + beta_d B_d(t_k)),
 
-with ``E_k`` the bin's good time, ``w_k`` the burst's light curve (its shape, from the
-Bayesian blocks of :mod:`rotmod.bursts.measure`), ``P_j`` the folded response of the
+with ``E_k`` the bin's good time, ``w_k`` the burst's light curve (Norris pulses fitted to
+the detector-summed counts where the Bayesian blocks of :mod:`rotmod.bursts.measure` put
+the burst, :mod:`rotmod.bursts.pulses`), ``P_j`` the folded response of the
 attitude segment ``j`` the bin falls in, ``B_d`` the background rate fitted outside the
 burst and ``beta_d`` a free level per detector (the background's normalisation during the
 burst is fitted with the burst, as in the source fits).  The response is an
@@ -19,7 +20,7 @@ burst is fitted with the burst, as in the source fits).  The response is an
    burst (Cauchy-Schwarz);
 2. **fits**: the exact likelihood at the map's best distinct peaks, and Nelder-Mead climbs
    from the most likely of them in bins that resolve the modulation at their off-axis
-   angles, the light curve profiled at each trial position; the highest likelihood is
+   angles, the light curve fitted again as seen from each start; the highest likelihood is
    kept and the others are reported as alternatives;
 3. **region**: :func:`rotmod.sources.localise` -- the likelihood surface around the best
    and every other mode within :data:`MODE_DTS`, each weighted by its probability
@@ -65,8 +66,8 @@ from rotmod.sources.fitting import FitResult, SourceFitter, fit_with, geometric_
 from rotmod.sources.localisation import Region, localise
 from rotmod.sources.model import PointSource, SkyModel, positions_of
 
-__all__ = ["BurstCounts", "BurstPosition", "ScoreMap", "bin_events", "burst_response",
-           "localise_burst", "search_map"]
+__all__ = ["BurstCounts", "BurstPosition", "ScoreMap", "bin_events", "burst_pulses",
+           "burst_response", "localise_burst", "search_map"]
 
 #: Attitude segments of at most this many seconds (a balloon's pointing moves by well under
 #: the instrument's scale in that time; a fast slew can pass a shorter step).
@@ -501,9 +502,10 @@ def localise_burst(
         its rate in each bin is the template whose level per detector is fitted with the
         burst.
     light_curve : BurstLightCurve or callable, optional
-        The burst's light curve (:func:`rotmod.bursts.burst_light_curve`), whose shape
-        weights the response bin by bin (or any function of the bins' edges giving their
-        weights); ``None``: a constant source over the window.
+        The burst's Bayesian blocks (:func:`rotmod.bursts.burst_light_curve`): Norris
+        pulses are fitted to the summed counts there (:func:`burst_pulses`), as seen from
+        each candidate position, and weight the response bin by bin.  Or any function of
+        the bins' edges giving their weights; ``None``: a constant source over the window.
     energy : float or Quantity
         Energy of the response (keV).
     model : str or ProfileModel

@@ -186,7 +186,7 @@ def run_one(i: int, seed: int, inst, att, cache: dict, do_nolc: bool) -> dict:
 
 def truth_diagnostic(burst, truth) -> dict:
     """The TS of the best fit above the truth's (flux and background levels refitted, the
-    position held at the truth, the light curve profiled there as at any trial position),
+    position held at the truth, the pulses fitted as seen from there as from any start),
     in the fine fit's own bins and response: ``dts_truth < 0`` means the fit missed a
     higher maximum (at the truth); for a 2-D Wilks surface the truth is in the 90 % region
     when ``dts_truth < 4.61``."""

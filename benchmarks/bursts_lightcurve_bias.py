@@ -7,8 +7,8 @@ Each time, the background and light curve are measured as ``analyse_burst`` meas
 and the likelihood's maximum is climbed from the true position (the search is not under test here)
 twice on the same counts:
 
-* **with L(t)**: the response weighted by the light curve seen from the trial position, as
-  :func:`rotmod.bursts.localise_burst` does;
+* **with L(t)**: the response weighted by the Norris pulses fitted as seen from the climb's
+  start (the truth), as :func:`rotmod.bursts.localise_burst` does from each of its starts;
 * **constant**: a source constant over the burst's extent (the light curve ignored).
 
 The mean offset from the truth (radial and azimuthal, in the instrument frame) over the

@@ -595,9 +595,12 @@ def localise_burst(
 
     def seen_from(src: PointSource, c: BurstCounts, u_c: UnfoldedResponse,
                   d_c: PoissonData) -> SourceFitter:
-        """The fitter of a source at ``src``, its light curve seen from there."""
+        """The fitter of a source at ``src``, its light curve seen from there (a given
+        light curve is the same from everywhere: the search's fitter and its columns are
+        shared)."""
         if pulses is None:
-            return SourceFitter(u_c.with_weight(weights(c)), d_c)
+            return (null_fitter if c is counts
+                    else SourceFitter(u_c.with_weight(weights(c)), d_c))
         w = burst_pulses(light_curve, c, background, u_c, src, pulses).shape(c.edges)
         return SourceFitter(u_c.with_weight(w), d_c)
 

@@ -244,9 +244,8 @@ def fit_pulses(edges: np.ndarray, counts: np.ndarray, background: np.ndarray,
     burst = np.flatnonzero(bk.burst)
     centre = 0.5 * (bk.edges[:-1] + bk.edges[1:])
 
-    def excess_block(theta: np.ndarray | None) -> int:
-        """The burst block with the largest excess of counts over ``theta``'s model."""
-        mu = beta0 * b if theta is None else _model(theta, t, g, b)[0]
+    def excess_block(mu: np.ndarray) -> int:
+        """The burst block with the largest excess of counts over the model ``mu``."""
         k = np.clip(np.searchsorted(bk.edges, t, side="right") - 1, 0, bk.counts.size - 1)
         inside = (t >= bk.edges[0]) & (t < bk.edges[-1])
         ex = np.bincount(k[inside], weights=(y - mu)[inside], minlength=bk.counts.size)
@@ -261,24 +260,22 @@ def fit_pulses(edges: np.ndarray, counts: np.ndarray, background: np.ndarray,
             hi += 1
         return float(bk.edges[lo]), float(bk.edges[hi + 1])
 
-    beta0 = 1.0
     theta, best = None, np.inf
-    base = np.array([0.0])
     for _ in range(MAX_PULSES):
-        k = excess_block(theta)
+        mu = b if theta is None else _model(theta, t, g, b)[0]
+        k = excess_block(mu)
         t0, t1 = run_of(k)
         amp = max(float(bk.net_rate[k]), 1e-3) / r_mean
         if theta is not None:
             # Only the excess not yet modelled.
-            mu_k = _model(theta, t, g, b)[0]
             sel = (t >= bk.edges[k]) & (t < bk.edges[k + 1])
-            amp = max(float((y[sel] - mu_k[sel]).sum() / max(g[sel].sum(), 1e-12)), 1e-3)
+            amp = max(float((y[sel] - mu[sel]).sum() / max(g[sel].sum(), 1e-12)), 1e-3)
         trial, trial_cost = None, np.inf
         for width in START_WIDTHS:
             for asym in START_ASYMMETRIES:
-                start = np.concatenate([base if theta is None else theta,
-                                        _pulse(centre[k], width * (t1 - t0), asym, amp)])
-                x, c = _fit(start, t, g, b, y, span)
+                theta0 = np.concatenate([[0.0] if theta is None else theta,
+                                         _pulse(centre[k], width * (t1 - t0), asym, amp)])
+                x, c = _fit(theta0, t, g, b, y, span)
                 if c < trial_cost:
                     trial, trial_cost = x, c
         if theta is not None and 2.0 * (best - trial_cost) < ADD_TS:

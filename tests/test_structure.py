@@ -50,7 +50,7 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("files", {"io"}),
     ("response", {"response"}),
     ("users", {"reconstruction", "sources", "bursts", "calibration", "design", "plotting",
-               "testing"}),
+               "testing", "compilation"}),
     ("products", {"paper", "cli"}),
 ]
 #: ``hasattr`` calls allowed in src (module path relative to src/rotmod -> why): none.  Ask

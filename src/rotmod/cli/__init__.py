@@ -169,7 +169,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # The command as given, for the provenance cards of the files a command writes.
     args.command_line = ["rotmod", *argv]
     try:
-        with cli_logging(args.verbose, args.quiet):
+        with cli_logging(args.verbose, args.quiet), _compile_notice(args.quiet):
             return int(args.func(args) or EXIT_OK)
     except KeyboardInterrupt:
         print("rotmod: interrupted", file=sys.stderr)
@@ -187,6 +187,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"rotmod: unexpected error ({type(exc).__name__}); this is a bug, please "
               "report it with the traceback above", file=sys.stderr)
         return EXIT_UNEXPECTED
+
+
+def _compile_notice(quiet: bool) -> contextlib.AbstractContextManager[None]:
+    """Say on stderr when numba compiles rotmod's kernels (not with ``-q``).
+
+    Imported when a command runs, like the subcommands' modules: ``rotmod --help`` loads no
+    numba."""
+    if quiet:
+        return contextlib.nullcontext()
+    compilation = importlib.import_module("rotmod.compilation")
+    return compilation.compile_notice(lambda msg: print(msg, file=sys.stderr, flush=True))
 
 
 def _describe(exc: BaseException) -> str:

@@ -119,32 +119,43 @@ def profile_kernel(
 
     Cells are ``q = (d * n_t + t) * n_n + n``; chunk ``j`` simulates ``nphot[j]`` photons in
     each cell ``cell_lo[j] <= q < cell_hi[j]`` and adds them to ``counts[part[j], q]``.
+    The parallel loop only calls :func:`_profile_chunk` (numba's parallel compilation
+    analyses the loop's body: a short one compiles in a fraction of the time).
     """
     for j in prange(cell_lo.size):
-        st = states[j].copy()
-        for q in range(cell_lo[j], cell_hi[j]):
-            n = q % n_n
-            t = (q // n_n) % n_t
-            d = q // (n_n * n_t)
-            l_bot = height / cos_t[n]
-            l_top = (height + thickness) / cos_t[n]
-            c = math.cos(xi_lo[t])
-            s = math.sin(xi_lo[t])
-            du = sin_t[n] * (cos_p[n] * c - sin_p[n] * s)
-            k = 0
-            for _ in range(nphot[j]):
-                ex, ey = _disc(st)
-                px = det_x[d] + radius * ex
-                py = det_y[d] + radius * ey
-                if binned:
-                    xi = xi_lo[t] + xi_width[t] * next_double(st)
-                    c = math.cos(xi)
-                    s = math.sin(xi)
-                    du = sin_t[n] * (cos_p[n] * c - sin_p[n] * s)
-                u0 = px * c - py * s
-                if _survives(st, u0, du, l_bot, l_top, a, b, mu[n], thin_opaque):
-                    k += 1
-            counts[part[j], q] += k
+        _profile_chunk(cell_lo[j], cell_hi[j], nphot[j], states[j].copy(), det_x, det_y,
+                       radius, sin_t, cos_t, cos_p, sin_p, mu, xi_lo, xi_width, binned, a, b,
+                       height, thickness, thin_opaque, n_t, n_n, counts[part[j]])
+
+
+@njit(cache=True)
+def _profile_chunk(q0, q1, nphot, st, det_x, det_y, radius, sin_t, cos_t, cos_p, sin_p, mu,
+                   xi_lo, xi_width, binned, a, b, height, thickness, thin_opaque, n_t, n_n,
+                   counts):
+    """One chunk of :func:`profile_kernel`: cells ``q0 <= q < q1``, ``st`` its RNG state."""
+    for q in range(q0, q1):
+        n = q % n_n
+        t = (q // n_n) % n_t
+        d = q // (n_n * n_t)
+        l_bot = height / cos_t[n]
+        l_top = (height + thickness) / cos_t[n]
+        c = math.cos(xi_lo[t])
+        s = math.sin(xi_lo[t])
+        du = sin_t[n] * (cos_p[n] * c - sin_p[n] * s)
+        k = 0
+        for _ in range(nphot):
+            ex, ey = _disc(st)
+            px = det_x[d] + radius * ex
+            py = det_y[d] + radius * ey
+            if binned:
+                xi = xi_lo[t] + xi_width[t] * next_double(st)
+                c = math.cos(xi)
+                s = math.sin(xi)
+                du = sin_t[n] * (cos_p[n] * c - sin_p[n] * s)
+            u0 = px * c - py * s
+            if _survives(st, u0, du, l_bot, l_top, a, b, mu[n], thin_opaque):
+                k += 1
+        counts[q] += k
 
 
 @njit(parallel=True, cache=True)
@@ -174,39 +185,50 @@ def observation_kernel(
 
     The incident counts are redrawn from ``states_n`` in the same order as
     :func:`observation_count_kernel`, so ``offset`` (its cumulative sums) bounds the output.
+    The parallel loop only calls :func:`_observation_piece` (a short body compiles faster).
     """
     for j in prange(t0.size):
-        stn = states_n[j].copy()
-        st = states_p[j].copy()
-        dt = t1[j] - t0[j]
-        w = offset[j]
-        for d in range(det_x.size):
-            for n in range(rate.size):
-                m = poisson(stn, rate[n] * dt)
-                l_bot = height / cos_t[n]
-                l_top = (height + thickness) / cos_t[n]
-                for _ in range(m):
-                    tt = t0[j] + dt * next_double(st)
-                    xi = omega * tt + phase0
-                    c = math.cos(xi)
-                    s = math.sin(xi)
-                    du = sin_t[n] * (cos_p[n] * c - sin_p[n] * s)
-                    ex, ey = _disc(st)
-                    px = det_x[d] + radius * ex
-                    py = det_y[d] + radius * ey
-                    u0 = px * c - py * s
-                    if _survives(st, u0, du, l_bot, l_top, a, b, mu[n], thin_opaque):
-                        out_time[w] = tt
-                        out_det[w] = d
-                        out_src[w] = n
-                        w += 1
-            m = poisson(stn, bkg[d] * dt)
-            for _ in range(m):
-                out_time[w] = t0[j] + dt * next_double(st)
-                out_det[w] = d
-                out_src[w] = -1
-                w += 1
+        w = _observation_piece(t0[j], t1[j], states_n[j].copy(), states_p[j].copy(),
+                               offset[j], det_x, det_y, radius, sin_t, cos_t, cos_p, sin_p,
+                               mu, rate, bkg, omega, phase0, a, b, height, thickness,
+                               thin_opaque, out_time, out_det, out_src)
         n_out[j] = w - offset[j]
+
+
+@njit(cache=True)
+def _observation_piece(t0, t1, stn, st, w, det_x, det_y, radius, sin_t, cos_t, cos_p, sin_p,
+                       mu, rate, bkg, omega, phase0, a, b, height, thickness, thin_opaque,
+                       out_time, out_det, out_src):
+    """One time piece of :func:`observation_kernel`, written from index ``w``; returns the
+    index after its last event."""
+    dt = t1 - t0
+    for d in range(det_x.size):
+        for n in range(rate.size):
+            m = poisson(stn, rate[n] * dt)
+            l_bot = height / cos_t[n]
+            l_top = (height + thickness) / cos_t[n]
+            for _ in range(m):
+                tt = t0 + dt * next_double(st)
+                xi = omega * tt + phase0
+                c = math.cos(xi)
+                s = math.sin(xi)
+                du = sin_t[n] * (cos_p[n] * c - sin_p[n] * s)
+                ex, ey = _disc(st)
+                px = det_x[d] + radius * ex
+                py = det_y[d] + radius * ey
+                u0 = px * c - py * s
+                if _survives(st, u0, du, l_bot, l_top, a, b, mu[n], thin_opaque):
+                    out_time[w] = tt
+                    out_det[w] = d
+                    out_src[w] = n
+                    w += 1
+        m = poisson(stn, bkg[d] * dt)
+        for _ in range(m):
+            out_time[w] = t0 + dt * next_double(st)
+            out_det[w] = d
+            out_src[w] = -1
+            w += 1
+    return w
 
 
 # --------------------------------------------------------------------------- as built

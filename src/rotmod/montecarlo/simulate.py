@@ -45,6 +45,16 @@ _OBS_BATCH_PHOTONS = 2**23
 
 
 
+def _column(a: np.ndarray, j: int) -> np.ndarray:
+    """Column ``j`` of ``a`` as a new, writable, contiguous array.
+
+    A copy, not ``np.ascontiguousarray``: one detector's column is already contiguous and
+    would be passed through read-only (a detector array's positions are), and numba compiles
+    a kernel again for every read-only argument (seconds more of a first run).
+    """
+    return np.array(a[:, j], dtype=np.float64)
+
+
 def _check_instrument(instrument: Any) -> Instrument:
     if not isinstance(instrument, Instrument):
         raise ParameterError(f"instrument must be an Instrument, got {type(instrument)}")
@@ -277,7 +287,7 @@ def simulate_profiles(
     else:
         kernel = tr.profile_kernel
         args_geom = (
-            np.ascontiguousarray(det.positions[:, 0]), np.ascontiguousarray(det.positions[:, 1]),
+            _column(det.positions, 0), _column(det.positions, 1),
             det.radius, np.sin(th), np.cos(th), np.cos(ph), np.sin(ph), mu,
             np.ascontiguousarray(xi_lo), np.ascontiguousarray(xi_w), binned,
             a, b, L, h, thin_opaque, n_t, n_n,
@@ -350,7 +360,7 @@ def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.nda
     kind = {None: 0, "circle": 1, "square": 2}[mask.outline]
     size = 0.0 if mask.outline_size is None else mask.outline_size
     return (
-        np.ascontiguousarray(pos[:, 0]), np.ascontiguousarray(pos[:, 1]), R, H, mu_det,
+        _column(pos, 0), _column(pos, 1), R, H, mu_det,
         gen, wmax, np.ascontiguousarray(src), finite, mu,
         np.ascontiguousarray(xi_lo), np.ascontiguousarray(xi_w), binned,
         Q, cm, mask.thickness, e0, W, p, kind, size, thin_opaque, n_t, n_n,
@@ -518,7 +528,7 @@ def simulate_observation(
     det = inst.detectors
     src_th, src_ph = sources.theta.to_value(u.rad), sources.phi.to_value(u.rad)
     geom = (
-        np.ascontiguousarray(det.positions[:, 0]), np.ascontiguousarray(det.positions[:, 1]),
+        _column(det.positions, 0), _column(det.positions, 1),
         det.radius, np.sin(src_th), np.cos(src_th), np.cos(src_ph), np.sin(src_ph), mu,
         np.array(sources.rate), bkg,
         inst.angular_speed, phase, a, b, L, h, thin_opaque,

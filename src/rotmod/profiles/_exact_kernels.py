@@ -660,33 +660,47 @@ def _row_one_slat(X, Y, Sx, Sy, tau, e_tau, c, sn, d, radius, a, b, n_slats, out
         out_row[n] = min(max(1.0 - absorbed[n], 0.0), 1.0)
 
 
-@njit(parallel=True, cache=True)
 def _exact_grid(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, out):
+    """``out[d, t, n]``: the row kernel, or the per-point kernel where the rows do not apply
+    (``b = 0``, where only ``s = 0`` is one-slat; and a mix of opaque and finite optical
+    depths).  Two kernels chosen here rather than two branches of one: the per-point one
+    is compiled only where it is used (a first run compiles ~1 s less)."""
     nd, nt, nn = out.shape
     if a == 0.0:
         out[...] = 1.0
         return
+    n_inf = int(np.count_nonzero(np.isinf(tau)))
+    if b == 0.0 or nd * nt == 0 or 0 < n_inf < nn:
+        _exact_points(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, out)
+    else:
+        _exact_rows(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, out)
+
+
+@njit(parallel=True, cache=True)
+def _exact_points(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, out):
+    """The per-point kernel of :func:`_exact_grid`."""
+    nd, nt, nn = out.shape
+    e_tau = np.exp(-tau)
+    for idx in prange(nd * nt):
+        d = idx // nt
+        t = idx % nt
+        c = cos_xi[t]
+        sn = sin_xi[t]
+        for n in range(nn):
+            uc = X[d, n] * c - Y[d, n] * sn
+            s = Sx[n] * c - Sy[n] * sn
+            out[d, t, n] = (
+                1.0 if tau[n] == 0.0
+                else _point(uc, s, radius, a, b, tau[n], e_tau[n])
+            )
+
+
+@njit(parallel=True, cache=True)
+def _exact_rows(X, Y, Sx, Sy, tau, cos_xi, sin_xi, radius, a, b, out):
+    """The row kernel of :func:`_exact_grid` (:func:`_row_one_slat` per row)."""
+    nd, nt, nn = out.shape
     e_tau = np.exp(-tau)
     rows = nd * nt
-    n_inf = 0
-    for n in range(nn):
-        n_inf += 1 if math.isinf(tau[n]) else 0
-    if b == 0.0 or rows == 0 or 0 < n_inf < nn:
-        # Per-point kernel (b = 0, where only s = 0 is one-slat; and a mix of opaque and
-        # finite optical depths, which the row kernel does not take).
-        for idx in prange(rows):
-            d = idx // nt
-            t = idx % nt
-            c = cos_xi[t]
-            sn = sin_xi[t]
-            for n in range(nn):
-                uc = X[d, n] * c - Y[d, n] * sn
-                s = Sx[n] * c - Sy[n] * sn
-                out[d, t, n] = (
-                    1.0 if tau[n] == 0.0
-                    else _point(uc, s, radius, a, b, tau[n], e_tau[n])
-                )
-        return
     # At most floor((c + a + |s|) / p) + 1 footprints meet the disc, |s| <= min(a, b), each
     # with two clip pieces.
     n_slats = math.floor((2.0 * radius + a + min(a, b)) / (a + b)) + 1

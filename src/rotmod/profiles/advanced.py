@@ -193,9 +193,26 @@ def _slat_term(xs, ws, wa, opac, alpha, mode):
     return g
 
 
-@njit(parallel=True, cache=True, fastmath=_FAST)
+@njit(parallel=True, cache=True)
 def _advanced_rows(X, Y, Sx, Sy, opac, alpha, n_slats, cos_xi, sin_xi, diam, a, b, mode, out):
-    """Branch-free kernel for G0 and G0 - G1~ (modes 0 and 2), vectorised over sources.
+    """Branch-free kernel for G0 and G0 - G1~ (modes 0 and 2), vectorised over sources:
+    :func:`_advanced_row` for every (detector, angle) row, in parallel.
+
+    The parallel loop only calls the row kernel: numba's parallel compilation analyses the
+    loop's body, and with the row inlined it took twice as long to compile (a newcomer's
+    first run waits for it).
+    """
+    nd, nt = out.shape[:2]
+    for idx in prange(nd * nt):
+        d = idx // nt
+        t = idx % nt
+        _advanced_row(X[d], Y[d], Sx, Sy, opac, alpha, n_slats, cos_xi[t], sin_xi[t], diam,
+                      a, b, mode, out[d, t])
+
+
+@njit(cache=True, fastmath=_FAST)
+def _advanced_row(X, Y, Sx, Sy, opac, alpha, n_slats, c, sn, diam, a, b, mode, out):
+    """One (detector, angle) row ``out[n]`` of :func:`_advanced_rows`.
 
     With ``w = |x'|`` reduced to one period, the footprint nearest the disc is always slat
     ``m = 0`` (centre ``p/2``), so pass 1 evaluates it for every source, branch-free.  The
@@ -205,55 +222,50 @@ def _advanced_rows(X, Y, Sx, Sy, opac, alpha, n_slats, cos_xi, sin_xi, diam, a, 
     misses the disc contributes exactly 0 (all its F0 arguments clamp alike), so the sum
     equals the sum over all candidates.
     """
-    nd, nt, nn = out.shape
+    nn = out.shape[0]
     p = a + b
     inv_p = 1.0 / p
     inv_c = 1.0 / diam
     g0_only = 0.0 if mode == 2 else 1.0  # mode 0: alpha does not enter
-    for idx in prange(nd * nt):
-        d = idx // nt
-        t = idx % nt
-        c = cos_xi[t]
-        sn = sin_xi[t]
-        ws = np.empty(nn)  # |s|/c
-        wa = np.empty(nn)  # a'/c
-        wr = np.empty(nn)  # |x'(t)| reduced to [0, p)
-        reach = np.empty(nn)  # (a + |s| + c)/2: footprints with centres nearer meet the disc
-        first = np.empty(nn)  # first candidate slat m0
-        acc = np.empty(nn)
-        for n in range(nn):
-            uc = X[d, n] * c - Y[d, n] * sn
-            s = Sx[n] * c - Sy[n] * sn
-            sa = abs(s)
-            w = abs(uc + 0.5 * s)
-            w = w - p * np.floor(w * inv_p)
-            ws[n] = sa * inv_c
-            wa[n] = (a - sa) * inv_c
-            wr[n] = w
-            reach[n] = 0.5 * (a + sa + diam)
-            first[n] = _first_slat(w, sa, a, diam, inv_p)
-            xs = 0.5 * (wa[n] + 1.0) - abs(w - 0.5 * p) * inv_c
-            al = alpha[n] * (1.0 - g0_only)
-            acc[n] = _slat_term(xs, ws[n], wa[n], opac[n], al, mode)
-        # Pass 2: the other candidates that reach the disc.
-        own = np.empty(nn * n_slats, dtype=np.int64)
-        pos = np.empty(nn * n_slats)
-        k = 0
-        for n in range(nn):
-            for j in range(n_slats):
-                m = first[n] + j
-                if m != 0.0:
-                    dist = abs(wr[n] - (m + 0.5) * p)
-                    if dist < reach[n]:
-                        own[k] = n
-                        pos[k] = 0.5 * (wa[n] + 1.0) - dist * inv_c
-                        k += 1
-        for i in range(k):
-            n = own[i]
-            al = alpha[n] * (1.0 - g0_only)
-            acc[n] += _slat_term(pos[i], ws[n], wa[n], opac[n], al, mode)
-        for n in range(nn):
-            out[d, t, n] = min(max(1.0 - acc[n], 0.0), 1.0)
+    ws = np.empty(nn)  # |s|/c
+    wa = np.empty(nn)  # a'/c
+    wr = np.empty(nn)  # |x'(t)| reduced to [0, p)
+    reach = np.empty(nn)  # (a + |s| + c)/2: footprints with centres nearer meet the disc
+    first = np.empty(nn)  # first candidate slat m0
+    acc = np.empty(nn)
+    for n in range(nn):
+        uc = X[n] * c - Y[n] * sn
+        s = Sx[n] * c - Sy[n] * sn
+        sa = abs(s)
+        w = abs(uc + 0.5 * s)
+        w = w - p * np.floor(w * inv_p)
+        ws[n] = sa * inv_c
+        wa[n] = (a - sa) * inv_c
+        wr[n] = w
+        reach[n] = 0.5 * (a + sa + diam)
+        first[n] = _first_slat(w, sa, a, diam, inv_p)
+        xs = 0.5 * (wa[n] + 1.0) - abs(w - 0.5 * p) * inv_c
+        al = alpha[n] * (1.0 - g0_only)
+        acc[n] = _slat_term(xs, ws[n], wa[n], opac[n], al, mode)
+    # Pass 2: the other candidates that reach the disc.
+    own = np.empty(nn * n_slats, dtype=np.int64)
+    pos = np.empty(nn * n_slats)
+    k = 0
+    for n in range(nn):
+        for j in range(n_slats):
+            m = first[n] + j
+            if m != 0.0:
+                dist = abs(wr[n] - (m + 0.5) * p)
+                if dist < reach[n]:
+                    own[k] = n
+                    pos[k] = 0.5 * (wa[n] + 1.0) - dist * inv_c
+                    k += 1
+    for i in range(k):
+        n = own[i]
+        al = alpha[n] * (1.0 - g0_only)
+        acc[n] += _slat_term(pos[i], ws[n], wa[n], opac[n], al, mode)
+    for n in range(nn):
+        out[n] = min(max(1.0 - acc[n], 0.0), 1.0)
 
 
 def alpha_factor(tau: np.ndarray) -> np.ndarray:

@@ -166,6 +166,11 @@ def project(
     return ProjectedGeometry(X, Y, Sx, Sy, tau, th, ph, mu, det.positions, dist, mu_det)
 
 
+#: Bytes of the float64 buffer through which :meth:`ProfileModel.evaluate_into` fills a
+#: float32 output (a few angles at a time; in the last-level cache of this machine).
+CAST_BYTES = 2 << 20
+
+
 class ProfileModel(ABC):
     """A characteristic-profile model.
 
@@ -193,9 +198,10 @@ class ProfileModel(ABC):
       describe a subset of the instrument's detectors and sources (the response layer
       evaluates blocks): size the loops by ``out``, not by ``instrument``.
     * ``cos_xi, sin_xi`` are 1-D arrays of the ``n_angle`` mask angles' cosines and sines.
-    * ``out`` is a C-contiguous float32 or float64 array of shape ``(n_det, n_angle,
-      n_src)``, allocated by the caller and filled *in place* (no return value); every
-      element must be written (it is not zeroed first).
+    * ``out`` is a C-contiguous float64 array of shape ``(n_det, n_angle, n_src)``,
+      allocated by the caller and filled *in place* (no return value); every element must
+      be written (it is not zeroed first).  Callers that want float32 go through
+      :meth:`evaluate_into`, so that each kernel is compiled for one type only.
 
     If the model has a limited domain it overrides :meth:`check_validity`; a model of the
     instrument as built sets :attr:`handles_as_built`; a model of an asymmetric mask sets
@@ -271,7 +277,7 @@ class ProfileModel(ABC):
                      f"profiles of {n_det} detectors x {xi.size} angles x {geom.theta.size} "
                      "sources", hint="ask for fewer angles or sources at a time")
         out = np.empty((len(instrument.detectors), xi.size, geom.theta.size), dtype=dt)
-        self.evaluate(instrument, geom, np.cos(xi), np.sin(xi), out)
+        self.evaluate_into(instrument, geom, np.cos(xi), np.sin(xi), out)
         return out
 
     def validate(self, instrument: Instrument, geom: ProjectedGeometry) -> None:
@@ -319,8 +325,38 @@ class ProfileModel(ABC):
         cos_xi, sin_xi : ndarray, shape (n_angle,)
             Cosines and sines of the mask angles.
         out : ndarray, shape (n_det, n_angle, n_src)
-            C-contiguous float32 or float64; every element is written.
+            C-contiguous float64 (the only type the kernels are compiled for; callers
+            wanting float32 cast); every element is written.
         """
+
+    def evaluate_into(
+        self,
+        instrument: Instrument,
+        geom: ProjectedGeometry,
+        cos_xi: np.ndarray,
+        sin_xi: np.ndarray,
+        out: np.ndarray,
+    ) -> None:
+        """:meth:`evaluate` into ``out`` of float64 or float32.
+
+        The kernels are compiled for float64 only: a float32 specialisation of each would
+        double what a first run compiles (seconds of the README's first command).  A float32
+        ``out`` is filled a few angles at a time through a float64 buffer of at most
+        :data:`CAST_BYTES` (it stays in cache, so the cast costs ~nothing beside the
+        kernel, and the values are the kernel's, rounded once).
+        """
+        if out.dtype == np.float64:
+            self.evaluate(instrument, geom, cos_xi, sin_xi, out)
+            return
+        nd, nt, nn = out.shape
+        step = max(1, CAST_BYTES // (8 * max(nd * nn, 1)))
+        buf = np.empty((nd, min(step, nt), nn))
+        for t0 in range(0, nt, step):
+            t1 = min(nt, t0 + step)
+            part = buf[:, : t1 - t0] if t1 - t0 < buf.shape[1] else buf
+            part = np.ascontiguousarray(part)
+            self.evaluate(instrument, geom, cos_xi[t0:t1], sin_xi[t0:t1], part)
+            out[:, t0:t1] = part
 
     def describe(self) -> dict[str, Any]:
         """Parameters that identify this model (for metadata)."""

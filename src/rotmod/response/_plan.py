@@ -156,7 +156,7 @@ class ResponsePlan:
             out = np.empty(shape, dtype=self.dtype)
         xi = self.time_bins.sub_angles(t0, t1)
         if xi.shape[0] == 1:
-            self.model.evaluate(self.instrument, geom, np.cos(xi[0]), np.sin(xi[0]), out)
+            self.model.evaluate_into(self.instrument, geom, np.cos(xi[0]), np.sin(xi[0]), out)
             return out
         # Bin average: accumulate the sub-samples in float64, then scale and cast once.
         acc = np.zeros(shape)

@@ -52,7 +52,10 @@ def log_likelihood(y: np.ndarray, mu: np.ndarray) -> float:
     # ln(mu / y) as log1p((mu - y) / y): exact to rounding of the small difference.
     pos = y > 0
     excess = np.where(pos, (np.maximum(mu, 1e-300) - y) / np.where(pos, y, 1.0), 0.0)
-    return float(np.sum(np.where(pos, y * np.log1p(excess) - (mu - y), -mu)))
+    # A mu so small that mu / y rounds to 0 gives log1p(-1) = -inf: the answer for counts
+    # where nothing is expected, as for mu = 0 above, not a numerical accident to warn of.
+    with np.errstate(divide="ignore"):
+        return float(np.sum(np.where(pos, y * np.log1p(excess) - (mu - y), -mu)))
 
 
 @dataclass(frozen=True)

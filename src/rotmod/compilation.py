@@ -6,8 +6,8 @@ the sources, or ``NUMBA_CACHE_DIR``), so only a machine's first run of each pays
 ``benchmarks/bench_coldstart.py``, ``docs/response.md``).  Two things make that wait
 shorter and not silent:
 
-* :func:`compile_notice` says when compilation starts and how long it took (the command
-  line wraps every command in it);
+* :func:`rotmod.progress.compile_notice` says when compilation starts and how long it took
+  (the command line wraps every command in it);
 * :func:`compile_in_background` starts a second process, at the first compilation only
   (a warm cache never starts it), that compiles the kernels a command will need later
   (:func:`warm_kernels`) while the first process compiles the ones it needs now; the
@@ -22,9 +22,7 @@ import contextlib
 import os
 import subprocess
 import sys
-import time
-from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 from numba.core import event
@@ -32,56 +30,13 @@ from numba.core import event
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.montecarlo import PointSources, simulate_observation, simulate_profiles
 from rotmod.profiles import get_model
+from rotmod.progress import compiles_rotmod
 
-__all__ = ["MC_OBSERVATION", "MC_PROFILES", "compile_in_background", "compile_notice",
+__all__ = ["MC_OBSERVATION", "MC_PROFILES", "BackgroundCompilation", "compile_in_background",
            "warm_kernels"]
 
 #: Seconds a background compilation gets to stop when the block ends, before it is killed.
 STOP_TIMEOUT = 5.0
-
-
-def _ours(ev: Any) -> bool:
-    """Whether a numba compile event is one of rotmod's kernels."""
-    return ev.data["dispatcher"].py_func.__module__.startswith("rotmod")
-
-
-@contextlib.contextmanager
-def compile_notice(say: Callable[[str], Any]) -> Iterator[None]:
-    """Say when rotmod's numba kernels compile (their first use on a machine), and for how
-    long: otherwise a first run sits silent for up to a minute while it compiles.
-
-    ``say`` gets one line when the first of rotmod's kernels starts compiling and one with
-    the count and the time when the block ends.  Kernels loaded from numba's cache do not
-    compile and say nothing.
-    """
-    state = {"depth": 0, "count": 0, "seconds": 0.0, "t0": 0.0}
-
-    class _Listener(event.Listener):
-        def on_start(self, ev: event.Event) -> None:
-            if not _ours(ev):
-                return
-            if state["depth"] == 0:
-                if state["count"] == 0:
-                    say("rotmod: compiling numba kernels for their first use on this machine "
-                        "(cached for later runs) ...")
-                state["t0"] = time.perf_counter()
-            state["depth"] += 1
-
-        def on_end(self, ev: event.Event) -> None:
-            if not _ours(ev):
-                return
-            state["depth"] -= 1
-            state["count"] += 1
-            if state["depth"] == 0:
-                state["seconds"] += time.perf_counter() - state["t0"]
-
-    try:
-        with event.install_listener("numba:compile", _Listener()):
-            yield
-    finally:
-        if state["count"]:
-            say(f"rotmod: compiled {state['count']} numba kernels in "
-                f"{state['seconds']:.0f} s (once per machine)")
 
 
 #: Names of the Monte Carlo's kernels among the models of :func:`warm_kernels`: its
@@ -117,8 +72,60 @@ def warm_kernels(names: Sequence[str]) -> None:
             get_model(name).profile(inst, [1.0], [0.0], [0.0, 1.0], energy=300.0)
 
 
+class BackgroundCompilation:
+    """The second process of :func:`compile_in_background` (if it started)."""
+
+    def __init__(self, cmd: list[str]) -> None:
+        self._cmd = cmd
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._tried = False
+
+    def start(self) -> None:
+        """Start the process (once; later calls do nothing)."""
+        if self._tried:
+            return
+        self._tried = True
+        # Called inside numba's compiler: a process that cannot start (no executable, no
+        # resources) only loses the help, never the run.
+        with contextlib.suppress(OSError, ValueError):
+            self._proc = subprocess.Popen(self._cmd, stdin=subprocess.DEVNULL,
+                                          stdout=subprocess.DEVNULL,
+                                          stderr=subprocess.DEVNULL)
+
+    @property
+    def running(self) -> bool:
+        """Whether the process started and has not ended."""
+        return self._proc is not None and self._proc.poll() is None
+
+    def finish(self) -> None:
+        """Wait for the process to end, and start none after: before work that must have
+        the cores to itself (timings)."""
+        self._tried = True
+        if self._proc is not None:
+            self._proc.wait()
+
+    def stop(self) -> None:
+        """End the process: terminated, killed after :data:`STOP_TIMEOUT` s."""
+        if self._proc is None:
+            return
+        self._proc.terminate()
+        try:
+            self._proc.wait(STOP_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+
+
+def _cores() -> int:
+    """The cores this process may run on (its affinity, not the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # no affinity on this platform
+        return os.cpu_count() or 1
+
+
 @contextlib.contextmanager
-def compile_in_background(names: Sequence[str]) -> Iterator[None]:
+def compile_in_background(names: Sequence[str]) -> Iterator[BackgroundCompilation]:
     """While the block runs, compile the kernels of ``names`` (as :func:`warm_kernels`) in
     a second process, started at the block's first compilation of a rotmod kernel.
 
@@ -127,43 +134,29 @@ def compile_in_background(names: Sequence[str]) -> Iterator[None]:
     what it needs first; the block then loads from numba's cache whatever the second has
     finished.  So give ``names`` as the kernels the block needs *after* its first long
     compilation, in the order it needs them (a kernel both compile at once is compiled
-    twice).  The second process is stopped when the block ends (killed after
-    :data:`STOP_TIMEOUT`): by then it can only be compiling something the block already
-    compiled.  Nothing starts on one core.
+    twice).  The block gets a :class:`BackgroundCompilation`: ``finish()`` before work
+    that is timed.  The process is stopped when the block ends (killed after
+    :data:`STOP_TIMEOUT`); what it had not finished, the block did not need.  Nothing starts
+    with one core.
     """
-    cmd = _command(list(names))
-    procs: list[subprocess.Popen[bytes]] = []
-    started: list[bool] = []
+    bg = BackgroundCompilation(_command(list(names)))
 
     class _Listener(event.Listener):
         def on_start(self, ev: event.Event) -> None:
-            if started or not _ours(ev):
-                return
-            started.append(True)
-            # Inside numba's compiler: a process that cannot start (no executable, no
-            # resources) only loses the help, never the run.
-            with contextlib.suppress(OSError, ValueError):
-                procs.append(subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
-                                              stdout=subprocess.DEVNULL,
-                                              stderr=subprocess.DEVNULL))
+            if compiles_rotmod(ev):
+                bg.start()
 
         def on_end(self, ev: event.Event) -> None:
             pass
 
-    if (os.cpu_count() or 1) < 2:
-        yield
+    if _cores() < 2:
+        yield bg
         return
     try:
         with event.install_listener("numba:compile", _Listener()):
-            yield
+            yield bg
     finally:
-        for p in procs:
-            p.terminate()
-            try:
-                p.wait(STOP_TIMEOUT)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        bg.stop()
 
 
 def _command(names: list[str]) -> list[str]:

@@ -7,16 +7,17 @@ batch job is never silent) or a callable ``progress(done, total)`` (a GUI, a log
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from rotmod.errors import ParameterError
 
-__all__ = ["Progress", "ProgressArg", "progress_callbacks"]
+__all__ = ["Progress", "ProgressArg", "compile_notice", "compiles_rotmod", "progress_callbacks"]
 
 log = logging.getLogger(__name__)
 
@@ -139,3 +140,54 @@ def progress_callbacks(progress: ProgressArg, total: int, desc: str,
     if callable(progress):
         return progress, (lambda: None)
     raise ParameterError(f"progress must be None, a bool or a callable, got {progress!r}")
+
+
+def compiles_rotmod(ev: Any) -> bool:
+    """Whether a numba ``numba:compile`` event is one of rotmod's kernels."""
+    module = getattr(ev.data["dispatcher"].py_func, "__module__", None) or ""
+    return module.startswith("rotmod")
+
+
+@contextlib.contextmanager
+def compile_notice(say: Callable[[str], Any]) -> Iterator[None]:
+    """Say when rotmod's numba kernels compile (their first use on a machine), and for how
+    long: otherwise a first run sits silent while it compiles.
+
+    ``say`` gets one line when the first of rotmod's kernels starts compiling and one with
+    the count and the time when the block ends.  Kernels loaded from numba's cache do not
+    compile and say nothing.  (numba is imported here, not by this module: the command
+    line's ``--help`` loads none.)
+    """
+    from numba.core import event
+
+    state = {"depth": 0, "count": 0, "seconds": 0.0, "t0": 0.0}
+
+    class _Listener(event.Listener):
+        # These run inside numba's compiler: nothing here may raise into it.
+        def on_start(self, ev: event.Event) -> None:
+            if not compiles_rotmod(ev):
+                return
+            state["depth"] += 1
+            if state["depth"] == 1:
+                state["t0"] = time.perf_counter()
+                if state["count"] == 0:
+                    with contextlib.suppress(Exception):
+                        say("rotmod: compiling numba kernels for their first use on this "
+                            "machine (cached for later runs) ...")
+
+        def on_end(self, ev: event.Event) -> None:
+            if not compiles_rotmod(ev):
+                return
+            state["depth"] -= 1
+            state["count"] += 1
+            if state["depth"] == 0:
+                state["seconds"] += time.perf_counter() - state["t0"]
+
+    try:
+        with event.install_listener("numba:compile", _Listener()):
+            yield
+    finally:
+        n = state["count"]
+        if n:
+            say(f"rotmod: compiled {n} numba kernel{'s' if n > 1 else ''} in "
+                f"{state['seconds']:.0f} s (once per machine)")

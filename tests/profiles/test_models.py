@@ -272,18 +272,21 @@ def test_slat_count_m_plus_one_suffices():
     assert max(diffs_less) > 1e-3
 
 
+@pytest.mark.parametrize("rings", [0, 1])
 @pytest.mark.parametrize("cast_bytes", [base.CAST_BYTES, 100])
-def test_float32_output(paper_instrument, rng, monkeypatch, cast_bytes):
+def test_float32_output(rng, monkeypatch, cast_bytes, rings):
     # The kernels write float64 only; float32 is filled through a buffer a few angles at a
-    # time (100 bytes: 2 angles per call here, the last call a partial one): exactly the
-    # float64 values rounded once.
+    # time (CAST_ROWS = 1 and 100 bytes: 1-2 angles per call, the last call a partial one):
+    # exactly the float64 values rounded once, for one detector and for seven.
     monkeypatch.setattr(base, "CAST_BYTES", cast_bytes)
+    monkeypatch.setattr(base, "CAST_ROWS", 1 if cast_bytes == 100 else base.CAST_ROWS)
+    inst = Instrument(Mask(3.8, 3.8, 3.8, 100.0), DetectorArray.hexagonal(3.8, rings=rings))
     theta, phi = rng.uniform(0, 0.2, 5), rng.uniform(-3, 3, 5)
     xi = rng.uniform(0, 6.3, 7)
     for name in ALL:
         m = get_model(name)
-        p64 = m.profile(paper_instrument, rad(theta), rad(phi), rad(xi))
-        p32 = m.profile(paper_instrument, rad(theta), rad(phi), rad(xi), dtype=np.float32)
+        p64 = m.profile(inst, rad(theta), rad(phi), rad(xi), energy=662)
+        p32 = m.profile(inst, rad(theta), rad(phi), rad(xi), energy=662, dtype=np.float32)
         assert p32.dtype == np.float32
         np.testing.assert_array_equal(p32, p64.astype(np.float32))
 

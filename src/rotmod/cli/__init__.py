@@ -36,6 +36,7 @@ from collections.abc import Iterator, Sequence
 
 from rotmod import __version__
 from rotmod.errors import RotmodError
+from rotmod.progress import compile_notice
 
 __all__ = ["build_parser", "main"]
 
@@ -190,14 +191,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _compile_notice(quiet: bool) -> contextlib.AbstractContextManager[None]:
-    """Say on stderr when numba compiles rotmod's kernels (not with ``-q``).
-
-    Imported when a command runs, like the subcommands' modules: ``rotmod --help`` loads no
-    numba."""
+    """Say on stderr when numba compiles rotmod's kernels (not with ``-q``)."""
     if quiet:
         return contextlib.nullcontext()
-    compilation = importlib.import_module("rotmod.compilation")
-    return compilation.compile_notice(lambda msg: print(msg, file=sys.stderr, flush=True))
+    return compile_notice(lambda msg: print(msg, file=sys.stderr, flush=True))
 
 
 def _describe(exc: BaseException) -> str:

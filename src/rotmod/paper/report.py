@@ -514,8 +514,10 @@ def reproduce(
     # models' and the event Monte Carlo's, in the order the steps reach them, and this one
     # finds them in the cache (benchmarks/bench_coldstart.py).
     later = [m for m in VALIDATION_MODELS if m != REFERENCE_MODEL] + [MC_OBSERVATION]
-    with _progress(len(order), progress) as bar, compile_in_background(later):
+    with _progress(len(order), progress) as bar, compile_in_background(later) as bg:
         for i, name in enumerate(order):
+            if name == "speed":
+                bg.finish()  # the timings have the cores to themselves
             say(f"step {i + 1}/{len(chosen)}: {name}")
             results[name] = _run_step(name, out, fns[name], force=force or name == "summary",
                                       log=say)

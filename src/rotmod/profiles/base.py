@@ -28,6 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
+import numba
 import numpy as np
 
 from rotmod._validate import as_angle, as_distance, as_float_dtype
@@ -169,6 +170,8 @@ def project(
 #: Bytes of the float64 buffer through which :meth:`ProfileModel.evaluate_into` fills a
 #: float32 output (a few angles at a time; in the last-level cache of this machine).
 CAST_BYTES = 2 << 20
+#: Rows (detector x angle) per numba thread in each such call, at least.
+CAST_ROWS = 4
 
 
 class ProfileModel(ABC):
@@ -341,20 +344,23 @@ class ProfileModel(ABC):
 
         The kernels are compiled for float64 only: a float32 specialisation of each would
         double what a first run compiles (seconds of the README's first command).  A float32
-        ``out`` is filled a few angles at a time through a float64 buffer of at most
-        :data:`CAST_BYTES` (it stays in cache, so the cast costs ~nothing beside the
-        kernel, and the values are the kernel's, rounded once).
+        ``out`` is filled a few angles at a time through a float64 buffer of about
+        :data:`CAST_BYTES` (it stays in cache, so the cast costs little beside the kernel,
+        and the values are the kernel's, rounded once).  The buffer holds at least
+        :data:`CAST_ROWS` rows per numba thread (the kernels run rows in parallel) and at
+        least one angle, so it is larger where one angle's rows are.
         """
         if out.dtype == np.float64:
             self.evaluate(instrument, geom, cos_xi, sin_xi, out)
             return
         nd, nt, nn = out.shape
-        step = max(1, CAST_BYTES // (8 * max(nd * nn, 1)))
-        buf = np.empty((nd, min(step, nt), nn))
+        step = max(CAST_BYTES // (8 * max(nd * nn, 1)),
+                   -(-CAST_ROWS * numba.get_num_threads() // max(nd, 1)), 1)
+        step = min(step, max(nt, 1))
+        flat = np.empty(nd * step * nn)
         for t0 in range(0, nt, step):
             t1 = min(nt, t0 + step)
-            part = buf[:, : t1 - t0] if t1 - t0 < buf.shape[1] else buf
-            part = np.ascontiguousarray(part)
+            part = flat[: nd * (t1 - t0) * nn].reshape(nd, t1 - t0, nn)  # contiguous
             self.evaluate(instrument, geom, cos_xi[t0:t1], sin_xi[t0:t1], part)
             out[:, t0:t1] = part
 

@@ -993,20 +993,19 @@ def evaluate(
     size = 0.0 if m.outline_size is None else m.outline_size
     det = np.ascontiguousarray(geom.positions)
     src, finite = _sources(instrument, geom)
-    work = out if out.dtype == np.float64 else np.empty(out.shape)
     dets = instrument.detectors
     mu_det = np.full(geom.theta.size, geom.mu_det)
     cx = np.ascontiguousarray(cos_xi)
     sx = np.ascontiguousarray(sin_xi)
     _grid(det, dets.radius, dets.thickness, mu_det, src, finite, mu, m.thickness, Q, cm,
           m.slat_edges is None, m.slat_width, m.slat_gap, e0, W, cum, p, kind, size, cx, sx,
-          work)
+          out)
     if dets.thickness > 0 and not finite.all():
         _thick_parallel_grid(det, dets.radius, dets.thickness, mu_det, src, finite, mu,
                              m.thickness, Q, cm, m.slat_width, e0, W, cum, p, kind, size, cx,
-                             sx, work)
-    if kind and np.isnan(work).any():
-        d, t, n = (int(i[0]) for i in np.nonzero(np.isnan(work)))
+                             sx, out)
+    if kind and np.isnan(out).any():
+        d, t, n = (int(i[0]) for i in np.nonzero(np.isnan(out)))
         raise ModelValidityError(
             f"the exact model handles a finite mask (mask.outline = {m.outline!r}, "
             f"outline_size = {size:g} cm) where each detector's rays are all inside or all "
@@ -1015,5 +1014,3 @@ def evaluate(
             f"{np.degrees(np.arctan2(sin_xi[t], cos_xi[t])):.6g} deg; use the Monte Carlo "
             "(rotmod.montecarlo.simulate_profiles) there"
         )
-    if work is not out:
-        out[...] = work

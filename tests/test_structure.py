@@ -46,7 +46,7 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("instrument", {"materials", "geometry", "config"}),
     ("models", {"profiles", "rotmod"}),
     ("sky and data", {"sky", "events"}),
-    ("simulation", {"montecarlo"}),
+    ("simulation", {"montecarlo", "spectral"}),
     ("files", {"io"}),
     ("response", {"response"}),
     ("users", {"reconstruction", "sources", "bursts", "calibration", "design", "plotting",

@@ -14,9 +14,11 @@ from rotmod.errors import MaterialError, ParameterError
 from rotmod.geometry import Mask
 from rotmod.materials import (
     DATABASE_RANGE_KEV,
+    PARTIAL_PROCESSES,
     Material,
     database_provenance,
     mass_attenuation,
+    partial_attenuation,
 )
 from rotmod.materials._formula import atom_counts
 
@@ -253,3 +255,34 @@ def test_shipped_data_is_what_the_script_extracts():
         else:
             assert fresh[key].dtype == shipped[key].dtype
             assert np.array_equal(fresh[key], shipped[key]), key
+
+
+def test_partials_sum_to_the_total_and_follow_known_physics() -> None:
+    """The partial cross-sections add up to the total; in NaI the photoelectric effect
+    dominates at 50 keV, Compton scattering at 1 MeV, and pair production is 0 below its
+    1022 keV threshold and the largest process of lead at 100 MeV (XCOM's well-known
+    crossovers)."""
+    e = np.geomspace(5.0, 1e5, 200)
+    parts = partial_attenuation("NaI", e)
+    assert parts.shape == (200, len(PARTIAL_PROCESSES))
+    np.testing.assert_allclose(parts.sum(-1), mass_attenuation("NaI", e), rtol=1e-13)
+    assert np.argmax(partial_attenuation("NaI", 50.0)) == 2
+    assert np.argmax(partial_attenuation("NaI", 1000.0)) == 1
+    assert np.all(partial_attenuation("NaI", [100.0, 1021.0])[:, 3] == 0.0)
+    assert np.argmax(partial_attenuation("Pb", 1e5)) == 3
+
+
+def test_mixture_by_mass_fraction() -> None:
+    """A mixture ``{symbol: mass fraction}`` is the mass-weighted sum (normalised), so water
+    given as fractions equals the formula H2O."""
+    h, o = 2 * 1.00794, 15.9994
+    water = {"H": h / (h + o), "O": o / (h + o)}
+    e = np.array([30.0, 662.0, 5000.0])
+    np.testing.assert_allclose(mass_attenuation(water, e), mass_attenuation("H2O", e), rtol=1e-5)
+    # Unnormalised fractions are normalised.
+    np.testing.assert_allclose(mass_attenuation({"N": 3, "O": 1}, e),
+                               0.75 * mass_attenuation("N", e) + 0.25 * mass_attenuation("O", e))
+    with pytest.raises(MaterialError, match="mixture"):
+        mass_attenuation({"Xx": 1.0}, e)
+    with pytest.raises(MaterialError, match="not all be 0"):
+        mass_attenuation({"N": 0.0}, e)

@@ -31,6 +31,7 @@ import copy
 import functools
 import importlib.resources
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -42,8 +43,12 @@ from rotmod.errors import MaterialError, ParameterError
 from rotmod.materials._formula import atom_counts
 
 __all__ = [
-    "DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "Material", "database_provenance", "mass_attenuation",
+    "DATABASE_RANGE_KEV", "PAPER_SIGMA_662", "PARTIAL_PROCESSES", "Material", "database_provenance",
+    "mass_attenuation", "partial_attenuation",
 ]
+
+#: The processes of :func:`partial_attenuation`, in the order of its last axis (XCOM's).
+PARTIAL_PROCESSES = ("coherent", "incoherent", "photoelectric", "pair")
 
 #: Mass attenuation of lead at 662 keV (cm^2/g) that the seed paper's Sec. 4 scenarios use
 #: (XCOM gives 0.110).  It is the paper's number at the paper's energy, so rotmod never
@@ -144,22 +149,34 @@ def _composition(name: str) -> dict[str, float]:
     return {s: m / total for s, m in masses.items()}
 
 
-def _element_attenuation(symbol: str, e: np.ndarray) -> np.ndarray:
-    """Total mass attenuation of one element at energies ``e`` (keV, 1-D)."""
+def _element_partials(symbol: str, e: np.ndarray) -> np.ndarray:
+    """Partial mass attenuations of one element at energies ``e`` (keV, 1-D): shape
+    ``(e.size, 4)``, the columns of :data:`PARTIAL_PROCESSES`."""
     table = _database()[symbol].table
     grid = table[:, 0]
     # Last row with E <= e, so at an absorption edge (a repeated energy) the value above the
     # edge is used; the final row is folded into the last interval.
     i = np.clip(np.searchsorted(grid, e, side="right") - 1, 0, grid.size - 2)
     e0, e1 = grid[i], grid[i + 1]
-    total = np.zeros(e.shape)
+    out = np.empty((e.size, table.shape[1] - 1))
     for col in range(1, table.shape[1]):
         y0, y1 = table[i, col], table[i + 1, col]
         positive = (y0 > 0) & (y1 > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             loglog = y0 * np.exp(np.log(y1 / y0) * np.log(e / e0) / np.log(e1 / e0))
         linear = y0 + (y1 - y0) * (e - e0) / (e1 - e0)
-        total += np.where(positive, loglog, linear)
+        out[:, col - 1] = np.where(positive, loglog, linear)
+    return out
+
+
+def _element_attenuation(symbol: str, e: np.ndarray) -> np.ndarray:
+    """Total mass attenuation of one element at energies ``e`` (keV, 1-D).
+
+    The partials are summed left to right, as they always were, so totals keep their bits."""
+    parts = _element_partials(symbol, e)
+    total = np.zeros(e.shape)
+    for col in range(parts.shape[1]):
+        total += parts[:, col]
     return total
 
 
@@ -167,14 +184,50 @@ def _formula(name: str) -> str:
     return _ALIASES.get(name.strip().lower(), name.strip())
 
 
-def mass_attenuation(formula: str, energy: Any) -> np.ndarray:
+def _checked(energy: Any) -> np.ndarray:
+    """``energy`` in keV, refused outside the database's range."""
+    lo, hi = DATABASE_RANGE_KEV
+    e = as_energy(energy, "energy")
+    if np.any((e < lo) | (e > hi)):
+        bad = e[(e < lo) | (e > hi)].ravel()[0]
+        raise MaterialError(
+            f"energy must lie within the attenuation database's range {lo:g} keV to "
+            f"{hi:g} keV (NIST XCOM via fisx), got {bad:g} keV"
+        )
+    return e
+
+
+def _mass_fractions(formula: str | Mapping[str, float]) -> dict[str, float]:
+    """Mass fractions of a formula or name, or of a mixture given as ``{symbol: fraction}``
+    (normalised to 1; air is ``{"N": 0.7553, "O": 0.2318, "Ar": 0.0128, "C": 0.0001}``)."""
+    if isinstance(formula, Mapping):
+        db = _database()
+        bad = [k for k in formula if k not in db]
+        if bad or not formula:
+            raise MaterialError(
+                f"a mixture maps element symbols (H to Fm) to mass fractions; got {dict(formula)!r}"
+            )
+        w = {k: as_scalar(v, f"mass fraction of {k}", lo=0.0) for k, v in formula.items()}
+        total = sum(w.values())
+        if not total > 0:
+            raise MaterialError(f"a mixture's mass fractions must not all be 0, got {w!r}")
+        return {k: v / total for k, v in sorted(w.items())}
+    try:
+        return _composition(_formula(formula))
+    except MaterialError as exc:
+        raise MaterialError(
+            f"material {formula!r} is not an element, known name or chemical formula ({exc})"
+        ) from None
+
+
+def mass_attenuation(formula: str | Mapping[str, float], energy: Any) -> np.ndarray:
     """Total mass attenuation coefficient (with coherent scattering) in cm^2/g.
 
     Parameters
     ----------
-    formula : str
-        Element symbol, chemical formula (``"CdZnTe"``, ``"Bi4Ge3O12"``) or a common name
-        (``"lead"``).
+    formula : str or mapping
+        Element symbol, chemical formula (``"CdZnTe"``, ``"Bi4Ge3O12"``), a common name
+        (``"lead"``), or a mixture ``{symbol: mass fraction}``.
     energy : float, array_like or Quantity
         Photon energy (keV if plain numbers).
 
@@ -188,23 +241,38 @@ def mass_attenuation(formula: str, energy: Any) -> np.ndarray:
     MaterialError
         Unknown material, or an energy outside 1 keV to 100 GeV.
     """
-    lo, hi = DATABASE_RANGE_KEV
-    e = as_energy(energy, "energy")
-    if np.any((e < lo) | (e > hi)):
-        bad = e[(e < lo) | (e > hi)].ravel()[0]
-        raise MaterialError(
-            f"energy must lie within the attenuation database's range {lo:g} keV to "
-            f"{hi:g} keV (NIST XCOM via fisx), got {bad:g} keV"
-        )
-    try:
-        composition = _composition(_formula(formula))
-    except MaterialError as exc:
-        raise MaterialError(
-            f"material {formula!r} is not an element, known name or chemical formula ({exc})"
-        ) from None
+    e = _checked(energy)
+    composition = _mass_fractions(formula)
     flat = np.ravel(e).astype(float)
     sigma = sum(w * _element_attenuation(el, flat) for el, w in composition.items())
     return np.asarray(sigma).reshape(e.shape)
+
+
+def partial_attenuation(formula: str | Mapping[str, float], energy: Any) -> np.ndarray:
+    """Mass attenuation coefficients (cm^2/g) of each process: coherent (Rayleigh) and
+    incoherent (Compton) scattering, photoelectric absorption and pair production (nuclear
+    and electron fields together), as :data:`PARTIAL_PROCESSES`.
+
+    Parameters
+    ----------
+    formula : str or mapping
+        As for :func:`mass_attenuation`.
+    energy : float, array_like or Quantity
+        Photon energy (keV if plain numbers).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``energy.shape + (4,)``; the sum over the last axis is
+        :func:`mass_attenuation` (to rounding).
+    """
+    e = _checked(energy)
+    composition = _mass_fractions(formula)
+    flat = np.ravel(e).astype(float)
+    out = np.zeros((flat.size, len(PARTIAL_PROCESSES)))
+    for el, w in composition.items():
+        out += w * _element_partials(el, flat)
+    return out.reshape(*e.shape, len(PARTIAL_PROCESSES))
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from rotmod.events import fold
 from rotmod.io import write_events, write_folded
 from rotmod.io.catalogue import write_catalogue, write_detection
 from rotmod.io.images import write_image
+from rotmod.io.ogip import write_ogip
 from rotmod.io.regions import write_probability_map
 from rotmod.io.tables import write_light_curve
 from rotmod.io.tsmaps import write_ts_map
@@ -25,8 +26,10 @@ from rotmod.sky import Attitude, CelestialGrid, HealpixGrid, PointSources, SkyGe
 from rotmod.sources import Detection, FitResult, PointSource, Region, SkyModel, TSMap
 from rotmod.sources.catalogue import probability_map
 from rotmod.sources.lightcurve import LightCurve
+from rotmod.spectral import CountsSpectrum, PowerLaw
 from rotmod.testing import MatrixOperator, tiny_instrument
 from tests.conftest import rad
+from tests.spectral.test_spectrum import gaussian_response
 
 #: What the products below are written with: a seed and a command long enough to need
 #: CONTINUE cards.
@@ -93,6 +96,16 @@ def source_results() -> dict[str, object]:
     }
 
 
+def ogip_spectrum(seed: int = 1) -> CountsSpectrum:
+    """An E^-2 source of ~4e4 counts on a flat background; the background region is twice the
+    source region (BACKSCAL 2) over the same exposure."""
+    r = gaussian_response()
+    rng = np.random.default_rng(seed)
+    bkg = CountsSpectrum(rng.poisson(np.full(48, 50.0)), 1e4, backscal=2.0)
+    counts = rng.poisson(r.fold(PowerLaw(1e-4, -2.0), 1e4) + 25.0)
+    return CountsSpectrum(counts, 1e4, r, bkg, meta={"OBJECT": "test source"})
+
+
 def write_products(folder: Path, **provenance) -> dict[str, Path]:
     """Write one product of each kind into ``folder``; ``provenance`` goes to every writer."""
     inst = tiny_instrument(diameter=3.8, rotation_period=30.0)
@@ -110,7 +123,12 @@ def write_products(folder: Path, **provenance) -> dict[str, Path]:
     hpx = HealpixGrid(16, 300.0, 40.0, 12.0, Attitude(300.0, 40.0, -15.0), "ring")
     results = source_results()
     det = results["detection"]
+    ogip = write_ogip(ogip_spectrum(), folder / "src.pha", **provenance)
     return {
+        "OGIP spectrum": ogip,
+        "OGIP background": folder / "src_bkg.pha",
+        "OGIP RMF": folder / "src.rmf",
+        "OGIP ARF": folder / "src.arf",
         "catalogue": write_detection(det, folder / "cat.fits", **provenance),
         "instrument catalogue": write_catalogue(results["instrument fit"], folder / "icat.fits",
                                                 **provenance),

@@ -11,6 +11,7 @@ Each format is registered once, for the class it holds (:mod:`rotmod.io.registry
     rotmod.io.write(detection, "cat.fits")        # source catalogue, FITS or ECSV (io.catalogue)
     rotmod.io.write(detection.ts_map, "ts.fits")  # TS map, FITS (rotmod.io.tsmaps)
     rotmod.io.write(light_curve, "lc.ecsv")       # light curve, FITS or ECSV (rotmod.io.tables)
+    rotmod.io.write(spectrum, "src.pha")          # OGIP PHA + RMF + ARF (+ bkg) (rotmod.io.ogip)
     obj = rotmod.io.read("obs.fits")              # whatever the file holds
 
 The functions registered are the one implementation of each format; the older entry points
@@ -42,11 +43,13 @@ from rotmod.io.config import (
 )
 from rotmod.io.events import read_events, read_folded, write_events, write_folded
 from rotmod.io.images import FitsImage, read_image, write_image
+from rotmod.io.ogip import read_ogip, write_ogip
 from rotmod.io.regions import HealpixProbability, read_probability_map, write_probability_map
 from rotmod.io.registry import FileFormat, formats, read, register, write
 from rotmod.io.tables import read_attitude_table, write_attitude_table, write_light_curve
 from rotmod.io.tsmaps import TSMapFile, read_ts_map, write_ts_map
 from rotmod.sky.attitude import AttitudeTable
+from rotmod.spectral.spectrum import CountsSpectrum
 
 __all__ = [
     "FileFormat",
@@ -136,3 +139,4 @@ register(TSMapFile, "fits", reader=read_ts_map, extensions=(".fits", ".fits.gz")
 register(HealpixProbability, "fits", reader=read_probability_map,
          writer=write_probability_map, extensions=(".fits", ".fits.gz"),
          identify=_fits_identify("PROBMAP"))
+register(CountsSpectrum, "ogip", reader=read_ogip, writer=write_ogip, extensions=(".pha", ".pi"))

@@ -1,0 +1,254 @@
+"""OGIP spectral files: a counts spectrum (PHA), its redistribution (RMF), effective area (ARF)
+and background (PHA), as XSPEC, sherpa, threeML and gammapy read them.
+
+:func:`write_ogip` writes a :class:`rotmod.spectral.CountsSpectrum` as four files beside each
+other, the PHA naming the others in its ``RESPFILE``, ``ANCRFILE`` and ``BACKFILE`` cards::
+
+    src.pha       SPECTRUM (CHANNEL, COUNTS, QUALITY, BACKSCAL), EBOUNDS  OGIP/92-007
+    src.rmf       MATRIX (ENERG_LO, ENERG_HI, N_GRP, F_CHAN, N_CHAN, MATRIX), EBOUNDS
+                  CAL/GEN/92-002
+    src.arf       SPECRESP (ENERG_LO, ENERG_HI, SPECRESP)  CAL/GEN/92-002
+    src_bkg.pha   the background's SPECTRUM, when the spectrum has one
+
+Conventions: channels are numbered from 0 (``TLMIN`` = 0, as gammapy assumes); the RMF is of
+type ``REDIST`` (probabilities, the area in the ARF); counts are integers with Poisson errors
+(``POISSERR = T``).  ``BACKSCAL`` and ``QUALITY`` are columns as well as the usual cards,
+because gammapy reads them as columns.  Every file carries rotmod's provenance cards and
+checksums; all four are written atomically together (either all appear or none).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from astropy.io import fits
+
+from rotmod.errors import ParameterError
+from rotmod.io._fits import open_verified
+from rotmod.io.atomic import atomic_path, check_overwrite
+from rotmod.io.images import stamp_header
+from rotmod.spectral.spectrum import CountsSpectrum, SpectralResponse
+
+__all__ = ["ogip_paths", "read_ogip", "write_ogip"]
+
+#: Cards every OGIP spectral extension carries.
+_MISSION = {"TELESCOP": "ROTMOD", "INSTRUME": "RM", "FILTER": "NONE"}
+
+
+def ogip_paths(path: str | os.PathLike) -> dict[str, Path]:
+    """The files :func:`write_ogip` writes for the PHA file ``path`` (``.pha`` or ``.pi``):
+    ``{"pha", "rmf", "arf", "bkg"}``."""
+    p = Path(path)
+    if p.suffix.lower() not in (".pha", ".pi"):
+        raise ParameterError(f"path must end in .pha or .pi (an OGIP spectrum), got {str(p)!r}")
+    stem = p.with_suffix("")
+    return {"pha": p, "rmf": stem.with_suffix(".rmf"), "arf": stem.with_suffix(".arf"),
+            "bkg": stem.parent / f"{stem.name}_bkg{p.suffix}"}
+
+
+def _ebounds(resp: SpectralResponse) -> fits.BinTableHDU:
+    ce = resp.channel_edges
+    cols = [
+        fits.Column("CHANNEL", "J", array=np.arange(ce.size - 1)),
+        fits.Column("E_MIN", "E", unit="keV", array=ce[:-1]),
+        fits.Column("E_MAX", "E", unit="keV", array=ce[1:]),
+    ]
+    hdu = fits.BinTableHDU.from_columns(cols, name="EBOUNDS")
+    h = hdu.header
+    h["TLMIN1"], h["TLMAX1"] = 0, ce.size - 2
+    _cards(h, "RESPONSE", "EBOUNDS", "1.2.0", detchans=ce.size - 1)
+    return hdu
+
+
+def _cards(h: fits.Header, clas1: str, clas2: str, vers: str, *, detchans: int) -> None:
+    for k, v in _MISSION.items():
+        h[k] = v
+    h["HDUCLASS"] = ("OGIP", "format conforms to OGIP standard")
+    h["HDUCLAS1"] = clas1
+    h["HDUCLAS2"] = clas2
+    h["HDUVERS"] = vers
+    h["CHANTYPE"] = ("PI", "channels are calibrated energies")
+    h["DETCHANS"] = (detchans, "number of channels")
+
+
+def _spectrum_hdu(spec: CountsSpectrum, clas2: str, files: dict[str, str]) -> fits.BinTableHDU:
+    n = spec.counts.size
+    cols = [
+        fits.Column("CHANNEL", "J", array=np.arange(n)),
+        fits.Column("COUNTS", "J", unit="count", array=spec.counts),
+        fits.Column("QUALITY", "I", array=np.zeros(n, dtype=np.int16)),
+        fits.Column("BACKSCAL", "D", array=np.full(n, spec.backscal)),
+    ]
+    hdu = fits.BinTableHDU.from_columns(cols, name="SPECTRUM")
+    h = hdu.header
+    h["TLMIN1"], h["TLMAX1"] = 0, n - 1
+    _cards(h, "SPECTRUM", clas2, "1.2.1", detchans=n)
+    h["HDUCLAS3"] = "COUNT"
+    h["EXPOSURE"] = (spec.exposure, "[s] live time")
+    h["AREASCAL"] = 1.0
+    h["BACKSCAL"] = (spec.backscal, "background scaling (also a column)")
+    h["CORRSCAL"] = 0.0
+    h["POISSERR"] = (True, "Poisson errors")
+    h["SYS_ERR"] = 0.0
+    h["GROUPING"] = 0
+    for key in ("RESPFILE", "ANCRFILE", "BACKFILE", "CORRFILE"):
+        h[key] = files.get(key, "none")
+    h["OBS_ID"] = str(spec.meta.get("OBS_ID", spec.meta.get("OBJECT", "rotmod")))
+    for k, v in spec.meta.items():
+        if k != "OBS_ID":
+            h[k.upper()[:8]] = v
+    return hdu
+
+
+def write_ogip(
+    spectrum: CountsSpectrum, path: str | os.PathLike, *, overwrite: bool = False,
+    seed: Any = None, command: Any = None,
+) -> Path:
+    """Write ``spectrum`` as OGIP files: ``path`` (PHA) with its RMF, ARF and background PHA
+    beside it (:func:`ogip_paths`).
+
+    Parameters
+    ----------
+    spectrum : CountsSpectrum
+        With a response (the RMF and ARF come from it).
+    path : str or path-like
+        The PHA file (``.pha`` or ``.pi``).
+    overwrite : bool
+        Replace existing files (default: refuse if any of the files exists).
+    seed, command
+        Provenance cards.
+
+    Returns
+    -------
+    pathlib.Path
+        The PHA file.
+    """
+    if not isinstance(spectrum, CountsSpectrum):
+        raise ParameterError(f"spectrum must be a CountsSpectrum, got {type(spectrum).__name__}")
+    if spectrum.response is None:
+        raise ParameterError("spectrum has no response: an OGIP spectrum needs its RMF and ARF")
+    paths = ogip_paths(path)
+    if spectrum.background is None:
+        paths.pop("bkg")
+    for key, p in paths.items():
+        check_overwrite(p, overwrite, parameter=f"the {key.upper()} file" if key != "pha"
+                        else "path")
+    resp = spectrum.response
+    files = {"RESPFILE": paths["rmf"].name, "ANCRFILE": paths["arf"].name}
+    if "bkg" in paths:
+        files["BACKFILE"] = paths["bkg"].name
+
+    def primary() -> fits.PrimaryHDU:
+        hdu = fits.PrimaryHDU()
+        stamp_header(hdu.header, seed=seed, command=command)
+        return hdu
+
+    ee = resp.energy_edges
+    rows = []
+    for r in resp.matrix:
+        nz = np.flatnonzero(r)
+        rows.append((nz[0], nz[-1] + 1) if nz.size else (0, 0))
+    n_grp = np.array([1 if b > a else 0 for a, b in rows], dtype=np.int16)
+    # F_CHAN and N_CHAN as variable-length arrays (one group per row, none for an empty row):
+    # readers index them per group, and a repeat count of 1 would read back as a scalar.
+    f_chan = np.empty(len(rows), dtype=object)
+    n_chan = np.empty(len(rows), dtype=object)
+    for i, (a, b) in enumerate(rows):
+        f_chan[i] = np.array([a] if b > a else [], dtype=np.int32)
+        n_chan[i] = np.array([b - a] if b > a else [], dtype=np.int32)
+    matrix = np.empty(len(rows), dtype=object)
+    for i, (a, b) in enumerate(rows):
+        matrix[i] = resp.matrix[i, a:b].astype(np.float32)
+    mat = fits.BinTableHDU.from_columns([
+        fits.Column("ENERG_LO", "E", unit="keV", array=ee[:-1]),
+        fits.Column("ENERG_HI", "E", unit="keV", array=ee[1:]),
+        fits.Column("N_GRP", "I", array=n_grp),
+        fits.Column("F_CHAN", "PJ()", array=f_chan),
+        fits.Column("N_CHAN", "PJ()", array=n_chan),
+        fits.Column("MATRIX", "PE()", array=matrix),
+    ], name="MATRIX")
+    _cards(mat.header, "RESPONSE", "RSP_MATRIX", "1.3.0", detchans=resp.n_channels)
+    mat.header["HDUCLAS3"] = ("REDIST", "probabilities; the area is in the ARF")
+    mat.header["TLMIN4"] = (0, "first channel")
+    mat.header["LO_THRES"] = (0.0, "matrix values below are dropped")
+    arf = fits.BinTableHDU.from_columns([
+        fits.Column("ENERG_LO", "E", unit="keV", array=ee[:-1]),
+        fits.Column("ENERG_HI", "E", unit="keV", array=ee[1:]),
+        fits.Column("SPECRESP", "E", unit="cm2", array=resp.area),
+    ], name="SPECRESP")
+    _cards(arf.header, "RESPONSE", "SPECRESP", "1.1.0", detchans=resp.n_channels)
+    content = {
+        "pha": [primary(), _spectrum_hdu(spectrum, "TOTAL", files), _ebounds(resp)],
+        "rmf": [primary(), mat, _ebounds(resp)],
+        "arf": [primary(), arf],
+    }
+    if "bkg" in paths:
+        content["bkg"] = [primary(), _spectrum_hdu(spectrum.background, "BKG", {}),
+                          _ebounds(resp)]
+    # All files are written to temporary names first and renamed together at the end.
+    with contextlib.ExitStack() as stack:
+        for key, hdus in content.items():
+            tmp = stack.enter_context(atomic_path(paths[key]))
+            fits.HDUList(hdus).writeto(tmp, overwrite=True, checksum=True)
+    return paths["pha"]
+
+
+def _spectrum_from(hdul: fits.HDUList, path: Path) -> tuple[np.ndarray, float, float, Any]:
+    if "SPECTRUM" not in hdul:
+        raise ParameterError(f"file {str(path)!r} has no SPECTRUM extension (not an OGIP PHA)")
+    h = hdul["SPECTRUM"].header
+    d = hdul["SPECTRUM"].data
+    if "COUNTS" not in d.columns.names:
+        raise ParameterError(f"file {str(path)!r}: only COUNTS spectra are read (no RATE)")
+    backscal = (float(d["BACKSCAL"][0]) if "BACKSCAL" in d.columns.names
+                else float(h.get("BACKSCAL", 1.0)))
+    return np.asarray(d["COUNTS"]), float(h["EXPOSURE"]), backscal, h
+
+
+def read_ogip(path: str | os.PathLike) -> CountsSpectrum:
+    """Read a PHA file and the RMF, ARF and background its cards name (in its folder).
+
+    Raises
+    ------
+    RotmodError
+        A missing, unreadable or corrupt file.
+    ParameterError
+        A file that is not an OGIP spectrum rotmod can read (type I, COUNTS).
+    """
+    p = Path(path)
+    with open_verified(p) as hdul:
+        counts, exposure, backscal, h = _spectrum_from(hdul, p)
+        names = {k: str(h.get(k, "none")).strip() for k in ("RESPFILE", "ANCRFILE", "BACKFILE")}
+        meta = {k: h[k] for k in ("TELESCOP", "INSTRUME", "OBS_ID", "OBJECT") if k in h}
+    resp = None
+    if names["RESPFILE"].lower() != "none" and names["ANCRFILE"].lower() != "none":
+        with open_verified(p.parent / names["RESPFILE"]) as rmf:
+            m = rmf["MATRIX"].data
+            eb = rmf["EBOUNDS"].data
+            first = int(rmf["MATRIX"].header.get("TLMIN4", 1))
+            n_c = int(rmf["MATRIX"].header["DETCHANS"])
+            matrix = np.zeros((len(m), n_c))
+            for i, row in enumerate(m):
+                start = 0
+                f = np.atleast_1d(row["F_CHAN"])
+                nch = np.atleast_1d(row["N_CHAN"])
+                for k in range(int(row["N_GRP"])):
+                    a = int(f[k]) - first
+                    matrix[i, a:a + int(nch[k])] = row["MATRIX"][start:start + int(nch[k])]
+                    start += int(nch[k])
+            energy_edges = np.append(m["ENERG_LO"], m["ENERG_HI"][-1]).astype(float)
+            channel_edges = np.append(eb["E_MIN"], eb["E_MAX"][-1]).astype(float)
+        with open_verified(p.parent / names["ANCRFILE"]) as arf:
+            area = np.asarray(arf["SPECRESP"].data["SPECRESP"], dtype=float)
+        resp = SpectralResponse(energy_edges, channel_edges, matrix, area)
+    background = None
+    if names["BACKFILE"].lower() != "none":
+        bp = p.parent / names["BACKFILE"]
+        with open_verified(bp) as bkg:
+            b_counts, b_exp, b_scal, _ = _spectrum_from(bkg, bp)
+        background = CountsSpectrum(b_counts, b_exp, backscal=b_scal)
+    return CountsSpectrum(counts, exposure, resp, background, backscal, meta)

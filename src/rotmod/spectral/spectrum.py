@@ -1,0 +1,363 @@
+"""Counts spectra, their response (RMF x ARF) and forward-folded fits.
+
+A :class:`SpectralResponse` is what X-ray astronomy splits into two OGIP files: the
+redistribution matrix ``R[e, c]`` (probability that a photon of true energy bin ``e`` is
+recorded in channel ``c``; the RMF) and the effective area ``A[e]`` (cm^2; the ARF).  The
+counts a source model ``dN/dE`` predicts in channel ``c`` over an exposure ``T`` are
+
+    mu_c = T sum_e A_e R_ec ∫_e dN/dE dE,
+
+the bin integral taken exactly (:meth:`rotmod.spectral.models.SpectralModel.integral`).  A
+:class:`CountsSpectrum` holds Poisson counts per channel with that response and, optionally,
+a measured background spectrum, whose counts scale to the source's by the OGIP ratio
+``(backscal_src T_src) / (backscal_bkg T_bkg)``.
+
+:func:`fit_spectrum` maximises the Poisson likelihood: the Cash statistic without a
+background, and with a measured background the W statistic (XSPEC's ``wstat``: the
+background's expected counts per channel profiled out in closed form; Cash 1979, Wachter et
+al. 1979, the XSPEC manual's appendix "Statistics in XSPEC").  Errors come from the
+likelihood's curvature at the maximum.  These statistics are the ones sherpa, XSPEC, threeML
+and gammapy use, so a spectrum written as OGIP files (:mod:`rotmod.io.ogip`) fits to the same
+numbers there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from rotmod._validate import as_scalar
+from rotmod.errors import ParameterError
+from rotmod.spectral.models import SpectralModel
+
+__all__ = [
+    "CountsSpectrum", "SpectralFit", "SpectralResponse", "cash", "fit_spectrum", "wstat",
+]
+
+
+def _edges(values: Any, name: str) -> np.ndarray:
+    e = np.asarray(values, dtype=float)
+    if e.ndim != 1 or e.size < 2 or not np.all(np.isfinite(e)) or np.any(np.diff(e) <= 0):
+        raise ParameterError(f"{name} must be at least two finite, increasing values (keV)")
+    if e[0] < 0:
+        raise ParameterError(f"{name} must be >= 0 keV, got {e[0]:g}")
+    return e
+
+
+@dataclass(frozen=True, eq=False)
+class SpectralResponse:
+    """Redistribution matrix and effective area of one spectrum (an RMF and an ARF).
+
+    Parameters
+    ----------
+    energy_edges : array_like, shape (n_e + 1,)
+        True-energy bin edges (keV), increasing, the first > 0.
+    channel_edges : array_like, shape (n_c + 1,)
+        Nominal energy bounds of the channels (keV; the RMF's EBOUNDS), increasing.
+    matrix : array_like, shape (n_e, n_c)
+        Probability that a detected photon of true-energy bin ``e`` lands in channel ``c``
+        (each row sums to <= 1: photons recorded outside the channels are lost).
+    area : array_like, shape (n_e,)
+        Effective area (cm^2) per true-energy bin, >= 0.
+    """
+
+    energy_edges: np.ndarray
+    channel_edges: np.ndarray
+    matrix: np.ndarray
+    area: np.ndarray
+
+    def __post_init__(self) -> None:
+        ee = _edges(self.energy_edges, "energy_edges")
+        if not ee[0] > 0:
+            raise ParameterError("energy_edges must start above 0 keV")
+        ce = _edges(self.channel_edges, "channel_edges")
+        m = np.asarray(self.matrix, dtype=float)
+        a = np.asarray(self.area, dtype=float)
+        if m.shape != (ee.size - 1, ce.size - 1):
+            raise ParameterError(
+                f"matrix must have shape (n_energies, n_channels) = {(ee.size - 1, ce.size - 1)}, "
+                f"got {m.shape}"
+            )
+        if not np.all(np.isfinite(m)) or np.any(m < 0) or np.any(m.sum(1) > 1 + 1e-6):
+            raise ParameterError("matrix must be finite, >= 0, with rows summing to <= 1")
+        if a.shape != (ee.size - 1,) or not np.all(np.isfinite(a)) or np.any(a < 0):
+            raise ParameterError(f"area must be {ee.size - 1} finite values >= 0 (cm2)")
+        for name, v in (("energy_edges", ee), ("channel_edges", ce), ("matrix", m), ("area", a)):
+            v.setflags(write=False)
+            object.__setattr__(self, name, v)
+
+    @property
+    def n_channels(self) -> int:
+        return self.channel_edges.size - 1
+
+    def fold(self, model: SpectralModel, exposure: float) -> np.ndarray:
+        """Expected counts per channel of ``model`` over ``exposure`` seconds."""
+        flux = model.integral(self.energy_edges[:-1], self.energy_edges[1:])
+        return exposure * ((flux * self.area) @ self.matrix)
+
+
+@dataclass(frozen=True, eq=False)
+class CountsSpectrum:
+    """Counts per channel over an exposure, with their response and background.
+
+    Parameters
+    ----------
+    counts : array_like of int, shape (n_c,)
+        Recorded counts per channel (non-negative integers).
+    exposure : float
+        Live time (s), > 0.
+    response : SpectralResponse
+    background : CountsSpectrum, optional
+        A measured background (its own counts, exposure and ``backscal``; no response).
+    backscal : float
+        The OGIP scaling: a background spectrum's counts scale to this one's by
+        ``(backscal / background.backscal) (exposure / background.exposure)``.
+    meta : dict
+        Header cards for files (``TELESCOP``, ``INSTRUME``, ``OBJECT`` ...).
+    """
+
+    counts: np.ndarray
+    exposure: float
+    response: SpectralResponse | None = None
+    background: CountsSpectrum | None = None
+    backscal: float = 1.0
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        c = np.asarray(self.counts)
+        if c.ndim != 1 or c.size == 0:
+            raise ParameterError("counts must be a 1-D array, one value per channel")
+        if not np.all(np.isfinite(c)) or np.any(c < 0) or np.any(c != np.round(c)):
+            raise ParameterError("counts must be non-negative integers (Poisson counts)")
+        c = c.astype(np.int64)
+        c.setflags(write=False)
+        object.__setattr__(self, "counts", c)
+        object.__setattr__(self, "exposure", as_scalar(self.exposure, "exposure", lo=0.0,
+                                                       lo_open=True))
+        object.__setattr__(self, "backscal", as_scalar(self.backscal, "backscal", lo=0.0,
+                                                       lo_open=True))
+        if self.response is not None and self.response.n_channels != c.size:
+            raise ParameterError(
+                f"response has {self.response.n_channels} channels, counts {c.size}"
+            )
+        if self.background is not None and self.background.counts.size != c.size:
+            raise ParameterError(
+                f"background has {self.background.counts.size} channels, counts {c.size}"
+            )
+
+    @property
+    def background_ratio(self) -> float:
+        """``alpha``: a background count's weight in this spectrum (exposure and backscal)."""
+        if self.background is None:
+            raise ParameterError("this spectrum has no background")
+        b = self.background
+        return (self.backscal * self.exposure) / (b.backscal * b.exposure)
+
+
+def cash(counts: np.ndarray, mu: np.ndarray) -> float:
+    """The Cash statistic ``2 sum (mu - n + n ln(n / mu))`` (0 for a perfect fit; the form
+    XSPEC and sherpa call ``cstat`` and gammapy ``cash`` up to a constant: differences are what
+    count)."""
+    n = np.asarray(counts, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        term = np.where(n > 0, n * np.log(n / mu), 0.0)
+    return float(2.0 * np.sum(mu - n + term))
+
+
+def wstat(n_on: np.ndarray, n_off: np.ndarray, alpha: float, mu_sig: np.ndarray) -> float:
+    """The W statistic: Poisson on/off likelihood with the background's expectation per
+    channel profiled out (XSPEC manual, "Statistics in XSPEC", W statistic).
+
+    With ``b`` the background's expected counts in the off spectrum, ``mu_on = mu_sig + alpha
+    b`` and ``mu_off = b``; for each channel the ``b`` maximising the likelihood solves a
+    quadratic, ``b = (C + sqrt(C^2 + 4 (1 + alpha) alpha n_off mu_sig)) / (2 alpha (1 +
+    alpha))`` with ``C = alpha (n_on + n_off) - (1 + alpha) mu_sig``.  Returned as ``-2 ln L``
+    relative to the saturated model (so a perfect fit is 0), as XSPEC and gammapy do.
+    """
+    n_on = np.asarray(n_on, dtype=float)
+    n_off = np.asarray(n_off, dtype=float)
+    s = np.asarray(mu_sig, dtype=float)
+    a = float(alpha)
+    c = a * (n_on + n_off) - (1.0 + a) * s
+    b = (c + np.sqrt(c * c + 4.0 * (1.0 + a) * a * n_off * s)) / (2.0 * a * (1.0 + a))
+    mu_on = s + a * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_on = np.where(n_on > 0, n_on * np.log(n_on / mu_on), 0.0)
+        t_off = np.where(n_off > 0, n_off * np.log(n_off / b), 0.0)
+    return float(2.0 * np.sum(mu_on + b - n_on - n_off + t_on + t_off))
+
+
+@dataclass(frozen=True)
+class SpectralFit:
+    """Result of :func:`fit_spectrum`.
+
+    Attributes
+    ----------
+    model : SpectralModel
+        The model at the best fit.
+    free : tuple of str
+        The fitted parameters.
+    errors : dict of str to float
+        1-sigma errors from the curvature of ``-2 ln L`` at the maximum; NaN for a pegged
+        parameter (``pegged``).
+    covariance : ndarray
+        Covariance of the free parameters (in the order of ``free``; rows and columns of
+        pegged parameters NaN, the others computed with those held).
+    pegged : tuple of str
+        Parameters that ended at one of the model's search limits
+        (:attr:`SpectralModel.limits`, astromodels' min/max): the data do not bound them
+        there (a Band ``beta`` at -5 says the spectrum falls faster than any power law the
+        data can tell), so they have no curvature error; XSPEC calls such parameters pegged.
+    statistic : float
+        Cash or W statistic at the maximum (``stat_name`` says which).
+    stat_name : str
+    n_channels : int
+    """
+
+    model: SpectralModel
+    free: tuple[str, ...]
+    errors: dict[str, float]
+    covariance: np.ndarray
+    statistic: float
+    stat_name: str
+    n_channels: int
+    pegged: tuple[str, ...] = ()
+
+
+def _objective(spectrum: CountsSpectrum, channels: np.ndarray):
+    resp = spectrum.response
+    n = spectrum.counts[channels]
+    if spectrum.background is None:
+        def stat(model: SpectralModel) -> float:
+            mu = resp.fold(model, spectrum.exposure)[channels]
+            if np.any(mu <= 0) and np.any(n[mu <= 0] > 0):
+                return np.inf
+            return cash(n, np.maximum(mu, 1e-300))
+        return stat, "cash"
+    off = spectrum.background.counts[channels]
+    alpha = spectrum.background_ratio
+
+    def stat_w(model: SpectralModel) -> float:
+        return wstat(n, off, alpha, resp.fold(model, spectrum.exposure)[channels])
+    return stat_w, "wstat"
+
+
+def fit_spectrum(
+    spectrum: CountsSpectrum,
+    model: SpectralModel,
+    *,
+    free: Sequence[str] | None = None,
+    channels: Any = None,
+) -> SpectralFit:
+    """Fit ``model`` forward-folded through the spectrum's response (Cash or W statistic).
+
+    Parameters
+    ----------
+    spectrum : CountsSpectrum
+        With a response; with a background the W statistic is used.
+    model : SpectralModel
+        The start values; parameters not in ``free`` stay fixed.
+    free : sequence of str, optional
+        Parameters to fit (default: every parameter but pivots ``piv``).
+    channels : slice or array_like of bool or int, optional
+        The channels fitted (default all).
+
+    Returns
+    -------
+    SpectralFit
+    """
+    if spectrum.response is None:
+        raise ParameterError("spectrum has no response; fit_spectrum needs one")
+    names = list(model.parameters)
+    free = tuple(free) if free is not None else tuple(p for p in names if p != "piv")
+    bad = [p for p in free if p not in names]
+    if bad or not free:
+        raise ParameterError(f"free must name parameters of {type(model).__name__} ({names}), "
+                             f"got {list(free)}")
+    chans = np.arange(spectrum.counts.size)[channels if channels is not None else slice(None)]
+    stat, stat_name = _objective(spectrum, chans)
+    positive = set(type(model)._positive)
+    # Positive parameters are fitted in log so that the optimiser never leaves the domain.
+    logp = np.array([p in positive for p in free])
+    lims = np.array([type(model).limits.get(p, (-np.inf, np.inf)) for p in free])
+    start = np.clip([model.parameters[p] for p in free], lims[:, 0], lims[:, 1]).astype(float)
+    x0 = _to_fit(start, logp)
+
+    def build(x: np.ndarray) -> SpectralModel:
+        vals = np.where(logp, np.exp(x), x)
+        return model.with_parameters(**dict(zip(free, vals.tolist(), strict=True)))
+
+    def f(x: np.ndarray) -> float:
+        vals = np.where(logp, np.exp(x), x)
+        if np.any(vals < lims[:, 0]) or np.any(vals > lims[:, 1]):
+            return np.inf
+        try:
+            return stat(build(x))
+        except ParameterError:  # outside the model's domain (Band beta >= alpha, ...)
+            return np.inf
+
+    best = optimize.minimize(f, x0, method="Nelder-Mead",
+                             options={"xatol": 1e-9, "fatol": 1e-10, "maxiter": 20000,
+                                      "maxfev": 40000, "adaptive": True})
+    x = best.x
+    # Refine (Nelder-Mead stalls on long valleys), then the curvature in the natural
+    # parameters: d2(-2 ln L)/dp2 = 2 I, so cov = 2 H^-1.
+    with np.errstate(invalid="ignore"):  # Powell's line search meets inf beyond a limit
+        best = optimize.minimize(f, x, method="Powell", options={"xtol": 1e-10, "ftol": 1e-12})
+    x = best.x if best.fun <= f(x) else x
+    fitted = build(x)
+    p_hat = np.array([fitted.parameters[p] for p in free])
+    # Pegged: within 1e-4 of the limit's scale of a limit (the optimiser stops at the wall).
+    finite = np.isfinite(lims)
+    scale = 1e-4 * np.maximum(np.abs(np.where(finite, lims, 0.0)), 1.0)
+    at = np.any(finite & (np.abs(p_hat[:, None] - np.where(finite, lims, 0.0)) <= scale), axis=1)
+    inner = np.flatnonzero(~at)
+    cov = np.full((len(free), len(free)), np.nan)
+    if inner.size:
+
+        def f_inner(p: np.ndarray) -> float:
+            full = p_hat.copy()
+            full[inner] = p
+            return f(_to_fit(full, logp))
+
+        h = _hessian(f_inner, p_hat[inner])
+        try:
+            cov[np.ix_(inner, inner)] = 2.0 * np.linalg.inv(h)
+        except np.linalg.LinAlgError:
+            pass
+    var = np.diag(cov)
+    err = np.sqrt(np.where(var > 0, var, np.nan))
+    return SpectralFit(fitted, free, dict(zip(free, err.tolist(), strict=True)), cov,
+                       float(f(x)), stat_name, int(chans.size),
+                       tuple(p for p, a in zip(free, at, strict=True) if a))
+
+
+def _to_fit(p: np.ndarray, logp: np.ndarray) -> np.ndarray:
+    """Parameters as the optimiser sees them: the positive ones in log."""
+    x = np.array(p, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a step below 0 is outside: -> nan
+        x[logp] = np.log(x[logp])
+    return x
+
+
+def _hessian(f: Any, x: np.ndarray) -> np.ndarray:
+    """Central-difference Hessian of ``f`` at ``x`` (steps 1e-4 of each value's scale)."""
+    n = x.size
+    h = 1e-4 * np.maximum(np.abs(x), 1e-3)
+    out = np.empty((n, n))
+    f0 = f(x)
+    for i in range(n):
+        ei = np.zeros(n)
+        ei[i] = h[i]
+        out[i, i] = (f(x + ei) - 2.0 * f0 + f(x - ei)) / h[i] ** 2
+        for j in range(i):
+            ej = np.zeros(n)
+            ej[j] = h[j]
+            v = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (
+                4.0 * h[i] * h[j])
+            out[i, j] = out[j, i] = v
+    return out

@@ -165,13 +165,22 @@ def cosi() -> None:
     # the line of sight, R_E = 6378 km, up to 200 km; here on our NRLMSIS profile.  For a
     # density falling with scale height H it overestimates by ~dx / (2 H) = 0.7 %.
     print("zenith deg   ours X     their estimator on our profile   ratio")
-    for zen in (0.0, 20.0, 40.0, 60.0):
+    zens = (0.0, 20.0, 40.0, 60.0)
+    theirs_x = []
+    for zen in zens:
         z = np.radians(zen)
         s = np.arange(0.0, 2000.0, 0.1)
         hs = np.sqrt((6378.0 + 33.6) ** 2 + s**2 + 2 * (6378.0 + 33.6) * s * np.cos(z)) - 6378.0
         riemann = 1e4 * site.density_at(np.minimum(hs[hs < 150.0], 150.0)).sum()
+        theirs_x.append(riemann)
         ours = float(site.column_depth(33.6, zen))
         print(f"{zen:8.0f} {ours:10.4f} {riemann:20.4f} {riemann / ours:22.5f}")
+    print("T at 33.6 km, their site and date: ours / their method (their mu, their column)")
+    print("  E keV " + "".join(f"{z:>17.0f} deg" for z in zens))
+    for k in (0, 5, 8, 14):
+        row = [f"{float(site.transmission(e_kev[k], z, 33.6)):.4f} / "
+               f"{np.exp(-COSI_MU[k] * xt):.4f}" for z, xt in zip(zens, theirs_x, strict=True)]
+        print(f"{e_kev[k]:7.0f} " + "".join(f"{r:>21s}" for r in row))
     mu = air_attenuation(e_kev)
     t_site = site.transmission(e_kev, 0.0, 33.6)
     t_fs = fs.transmission(e_kev, 0.0, 33.6)

@@ -69,8 +69,8 @@ DEFAULT_SITE: tuple[float, float] = (34.47, -104.24)
 #: Default date (UTC): a Fort Sumner autumn campaign, local noon.
 DEFAULT_DATE = "2025-09-15T18:00"
 #: Default space weather: moderate solar activity (F10.7 and its 81-day mean, sfu) and a quiet
-#: magnetosphere (daily Ap).  They change the density at 30-40 km by < 0.1 % (measured:
-#: docs/atmosphere.md), so the defaults serve any flight.
+#: magnetosphere (daily Ap).  Between F10.7 = 70 and 250, or Ap = 4 and 100, the column above
+#: 30-40 km changes by < 2e-6 (measured: docs/atmosphere.md), so the defaults serve any flight.
 DEFAULT_F107 = 150.0
 DEFAULT_F107A = 150.0
 DEFAULT_AP = 4.0

@@ -26,8 +26,9 @@ the tangent point ``X(h, z) = 2 X(h_t, 90) - X(h, 180 - z)``.  When ``h_t <= 0``
 meets the ground: ``X = inf`` and ``T = 0``.
 
 The density profile comes from NRLMSIS 2.1 (Emmert et al. 2021, Earth Space Sci. 8,
-e2020EA001321) through pymsis, always with explicit space-weather indices (pymsis would
-otherwise download them): the stratosphere barely depends on them (docs/atmosphere.md).
+e2020EA001321; nitric oxide added in 2.1, Emmert et al. 2022, JGR Space Phys. 127) through
+pymsis, always with explicit space-weather indices (pymsis would otherwise download them): the
+stratosphere barely depends on them (docs/atmosphere.md).
 """
 
 from __future__ import annotations

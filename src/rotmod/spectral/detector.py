@@ -140,7 +140,7 @@ def _medium(det: DetectorArray, e_max: float) -> _Medium:
     mat = det.material
     assert mat is not None
     lo = DATABASE_RANGE_KEV[0]
-    n = int(math.ceil(math.log10(e_max * 1.01 / lo) * _GRID_PER_DECADE)) + 1
+    n = math.ceil(math.log10(e_max * 1.01 / lo) * _GRID_PER_DECADE) + 1
     ln0 = math.log(lo)
     dln = math.log(10.0) / _GRID_PER_DECADE
     grid = np.exp(ln0 + dln * np.arange(n))
@@ -482,34 +482,33 @@ class DetectorResponse:
     resolution: EnergyResolution | None
     n_photons: int
 
-    def _weights(self, theta: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        a = as_angle(theta, "theta", lo=float(self.angles[0]), hi=float(self.angles[-1]),
-                     ndim=1)
-        deg = np.degrees(a)
+    def _weights(self, theta: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Grid neighbours ``i, j``, the fraction in theta and the angles (deg)."""
+        deg = np.degrees(as_angle(theta, "theta", lo=float(self.angles[0]),
+                                  hi=float(self.angles[-1]), ndim=1))
         if self.angles.size == 1:
             z = np.zeros(deg.size, dtype=int)
-            return z, z, np.zeros(deg.size)
+            return z, z, np.zeros(deg.size), deg
         i = np.clip(np.searchsorted(self.angles, deg, side="right") - 1, 0,
                     self.angles.size - 2)
-        return i, i + 1, (deg - self.angles[i]) / (self.angles[i + 1] - self.angles[i])
+        f = (deg - self.angles[i]) / (self.angles[i + 1] - self.angles[i])
+        return i, i + 1, f, deg
 
     def interaction_at(self, theta: Any) -> np.ndarray:
         """Interaction probability at zenith angles ``theta`` (deg): shape
         ``(n_theta, n_energies)``, linear in ``tan(theta)`` between grid angles (exact for
         the side-entry term ``2 H tan(theta) / (pi R)`` of a black detector)."""
-        i, j, _ = self._weights(theta)
-        th = np.atleast_1d(np.asarray(theta, dtype=float) if not hasattr(theta, "unit")
-                           else theta.to_value("deg"))
+        i, j, _, deg = self._weights(theta)
         if self.angles.size == 1:
             return self.interaction[i]
         ti, tj = np.tan(np.radians(self.angles[i])), np.tan(np.radians(self.angles[j]))
-        f = ((np.tan(np.radians(th)) - ti) / (tj - ti))[:, None]
+        f = ((np.tan(np.radians(deg)) - ti) / (tj - ti))[:, None]
         return (1 - f) * self.interaction[i] + f * self.interaction[j]
 
     def matrix_at(self, theta: Any) -> np.ndarray:
         """Redistribution at zenith angles ``theta`` (deg), linear in ``theta`` between grid
         angles: shape ``(n_theta, n_energies, n_channels)``."""
-        i, j, f = self._weights(theta)
+        i, j, f, _ = self._weights(theta)
         f = f[:, None, None]
         return (1 - f) * self.matrix[i] + f * self.matrix[j]
 
@@ -558,9 +557,7 @@ def tabulate_response(
     e = _check_energy(energies, "energies")
     if np.any(np.diff(e) <= 0):
         raise ParameterError("energies must increase strictly")
-    ang = as_array(angles, "angles", lo=0.0, hi=90.0, hi_open=True, ndim=1)
-    if hasattr(angles, "unit"):
-        ang = np.degrees(as_angle(angles, "angles", lo=0.0, hi=90.0, hi_open=True, ndim=1))
+    ang = np.degrees(as_angle(angles, "angles", lo=0.0, hi=90.0, hi_open=True, ndim=1))
     if np.any(np.diff(ang) <= 0):
         raise ParameterError("angles must increase strictly")
     ch = _channel_edges(channel_edges)

@@ -280,22 +280,34 @@ class DepositSpectrum:
         t = as_scalar(threshold, "threshold", lo=0.0)
         return float(self.continuum[self.centres >= t].sum() + self.full_energy)
 
-    def peak_to_total(self, threshold: Any = 0.0) -> float:
-        """Full-energy deposits over all deposits ``>= threshold`` keV."""
-        return self.full_energy / self.above(threshold)
+    def peak_to_total(self, threshold: Any = 0.0, window: Any = 0.0) -> float:
+        """Peak deposits over all deposits ``>= threshold`` keV; the peak is the full energy
+        plus, with ``window`` > 0, the fine bins within ``window`` keV below it (the K-escape
+        lines that a scintillator's resolution merges with the photopeak)."""
+        return self.peak_fraction(window) / self.above(threshold)
 
-    def error(self, what: str, threshold: Any = 0.0) -> float:
-        """Jackknife standard error (over batches) of ``"full_energy"``, ``"peak_to_total"``
-        or ``"interaction"`` (relative errors of the last equal those of the mean weight)."""
+    def peak_fraction(self, window: Any = 0.0) -> float:
+        """Probability, given an interaction, of a deposit in ``[energy - window, energy]``
+        (fine bins by their centres; ``window = 0``: the full energy alone)."""
+        w = as_scalar(window, "window", lo=0.0)
+        near = self.centres >= self.energy - w if w > 0 else np.zeros(self.centres.size, bool)
+        return float(self.full_energy + self.continuum[near].sum())
+
+    def error(self, what: str, threshold: Any = 0.0, window: Any = 0.0) -> float:
+        """Jackknife standard error (over batches) of ``"full_energy"`` (with ``window``:
+        :meth:`peak_fraction`), ``"peak_to_total"`` or ``"interaction"``."""
         t = as_scalar(threshold, "threshold", lo=0.0)
+        w = as_scalar(window, "window", lo=0.0)
         b = self.batches
         n_fine = self.continuum.size
-        full, allw = b[:, n_fine], b[:, n_fine + 2]
-        cont = b[:, :n_fine][:, self.centres >= t].sum(axis=1)
+        allw = b[:, n_fine + 2]
+        near = self.centres >= self.energy - w if w > 0 else np.zeros(n_fine, bool)
+        peak = b[:, n_fine] + b[:, :n_fine][:, near].sum(axis=1)
+        cont = b[:, :n_fine][:, (self.centres >= t) & ~near].sum(axis=1)
         if what == "full_energy":
-            return _batch_error(full, allw)
+            return _batch_error(peak, allw)
         if what == "peak_to_total":
-            return _batch_error(full, full + cont)
+            return _batch_error(peak, peak + cont)
         if what == "interaction":
             return self.interaction_error
         raise ParameterError(

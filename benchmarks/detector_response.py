@@ -48,24 +48,28 @@ def validation(n: int) -> None:
     print(f"\n### 3\" x 3\" NaI(Tl), bare crystal, point source on the axis ({n:.0e} photons "
           "each)\n")
     print("| d (cm) | E (keV) | interactions / photon on face (MC) | closed form | "
-          "abs. total eff. (>= 30 keV) | abs. peak eff. | photofraction | "
-          "P/T (>= 30 keV) | P/T with K-escape (peak window 40 keV) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "abs. total eff. (>= 30 keV) | abs. peak eff. (1e-3) | photofraction | "
+          "P/T (>= 30 keV) | P/T with K-escape (peak window 40 keV) | "
+          "P/T, Rayleigh undeflected |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for d in (10.0, 25.0):
         for e in (122.0, 662.0, 1332.0):
             s = simulate_deposits(det, e, distance=d, n_photons=n, seed=int(e) + int(d))
+            f = simulate_deposits(det, e, distance=d, n_photons=n, seed=int(e) + int(d) + 1,
+                                  rayleigh="forward")
             mu = float(NAI.linear_attenuation(e))
             cf = total_efficiency_closed_form(mu, 3.81, 7.62, d)
             g = s.solid_angle
             tot = g * s.interaction * s.above(30.0)
-            pk = g * s.interaction * s.full_energy
-            pk_err = g * s.interaction * s.error("full_energy")
+            pk = 1e3 * g * s.interaction * s.full_energy
+            pk_err = 1e3 * g * s.interaction * s.error("full_energy")
             print(f"| {d:g} | {e:g} | {s.interaction:.5f} ± {s.interaction_error:.5f} | "
-                  f"{cf:.5f} | {tot:.5f} | {pk:.5f} ± {pk_err:.5f}"
+                  f"{cf:.5f} | {tot:.5f} | {pk:.4f} ± {pk_err:.4f}"
                   f" | {s.full_energy:.4f} ± {s.error('full_energy'):.4f} | "
                   f"{s.peak_to_total(30.0):.4f} ± {s.error('peak_to_total', 30.0):.4f} | "
                   f"{s.peak_to_total(30.0, 40.0):.4f} ± "
-                  f"{s.error('peak_to_total', 30.0, 40.0):.4f} |")
+                  f"{s.error('peak_to_total', 30.0, 40.0):.4f} | "
+                  f"{f.peak_to_total(30.0):.4f} ± {f.error('peak_to_total', 30.0):.4f} |")
 
 
 def theta_interpolation(n: int) -> None:

@@ -323,6 +323,8 @@ def test_bad_input_names_the_parameter():
         simulate_deposits(det, 100.0, distance=-1.0)
     with pytest.raises(ParameterError, match="theta"):
         simulate_deposits(det, 100.0, 10.0, distance=5.0)
+    with pytest.raises(ParameterError, match="rayleigh"):
+        simulate_deposits(det, 100.0, rayleigh="none")
     with pytest.raises(ParameterError, match="channel_edges"):
         tabulate_response(det, [100.0], [0.0], [10.0, 5.0])
     with pytest.raises(ParameterError, match="energies"):

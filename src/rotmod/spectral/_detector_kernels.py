@@ -203,7 +203,7 @@ def _entry(qx, qy, dx, dy, dz, R, H):
 
 @njit(cache=True)
 def _history(st, px, py, pz, dx, dy, dz, e, s_first, R, H, table, ln0, inv_dln, n_grid,
-             n_fl, lines, e_cut, stack):
+             n_fl, lines, e_cut, thomson, stack):
     """Energy (keV) deposited by one primary photon and its secondaries.
 
     The primary is at ``p`` (on the cylinder's surface) moving along ``d`` and interacts
@@ -211,7 +211,8 @@ def _history(st, px, py, pz, dx, dy, dz, e, s_first, R, H, table, ln0, inv_dln, 
     minus an escaping-or-not K x-ray (the x-ray is then transported), Compton scattering
     deposits the electron's energy, pair production ``E - 2 m c^2`` plus two back-to-back
     isotropic 511 keV photons from the interaction point, Rayleigh scattering only turns the
-    photon (Thomson angular law).  Photons below ``e_cut`` deposit their energy where they
+    photon (Thomson angular law; or, ``thomson`` False, not at all: the two bracket the
+    form-factor-peaked truth).  Photons below ``e_cut`` deposit their energy where they
     are.
     """
     edep = 0.0
@@ -279,7 +280,7 @@ def _history(st, px, py, pz, dx, dy, dz, e, s_first, R, H, table, ln0, inv_dln, 
                     ns += 1
                 else:  # never reached (one pair per history at most matters)
                     edep += ME_KEV
-            else:
+            elif thomson:
                 cost = _thomson_cos(st)
                 dx, dy, dz = _rotate(dx, dy, dz, cost, 2.0 * math.pi * _u01(st))
         if ns == 0:
@@ -296,7 +297,7 @@ def _history(st, px, py, pz, dx, dy, dz, e, s_first, R, H, table, ln0, inv_dln, 
 
 @njit(cache=True)
 def _chunk(st, n, e, mode, sin_t, cos_t, dist, R, H, forced, table, ln0, inv_dln, n_grid,
-           n_fl, lines, e_cut, hist, tally):
+           n_fl, lines, e_cut, thomson, hist, tally):
     """``n`` primaries of one chunk; adds to ``hist`` (weighted deposits in ``n_fine``
     bins of ``[0, e]``) and ``tally`` (sum of weights, of squared weights, full-energy
     weight, no-deposit weight, weight of deposits above ``e``)."""
@@ -351,7 +352,7 @@ def _chunk(st, n, e, mode, sin_t, cos_t, dist, R, H, forced, table, ln0, inv_dln
                 continue
             wgt = 1.0
         edep = _history(st, qx + t1 * dx, qy + t1 * dy, t1 * dz, dx, dy, dz, e, s, R, H,
-                        table, ln0, inv_dln, n_grid, n_fl, lines, e_cut, stack)
+                        table, ln0, inv_dln, n_grid, n_fl, lines, e_cut, thomson, stack)
         tally[0] += wgt
         tally[1] += wgt * wgt
         if edep > e * (1.0 + FULL_TOL):
@@ -367,9 +368,9 @@ def _chunk(st, n, e, mode, sin_t, cos_t, dist, R, H, forced, table, ln0, inv_dln
 
 @njit(parallel=True, cache=True)
 def deposit_kernel(states, nphot, e, mode, sin_t, cos_t, dist, R, H, forced, table, ln0,
-                   inv_dln, n_fl, lines, e_cut, hist, tally):
+                   inv_dln, n_fl, lines, e_cut, thomson, hist, tally):
     """Chunk ``j`` (own RNG state ``states[j]``) simulates ``nphot[j]`` primaries into
     ``hist[j]`` and ``tally[j]``; the parallel loop only calls :func:`_chunk`."""
     for j in prange(states.shape[0]):
         _chunk(states[j].copy(), nphot[j], e, mode, sin_t, cos_t, dist, R, H, forced, table,
-               ln0, inv_dln, table.shape[0], n_fl, lines, e_cut, hist[j], tally[j])
+               ln0, inv_dln, table.shape[0], n_fl, lines, e_cut, thomson, hist[j], tally[j])

@@ -30,7 +30,8 @@ Physics (each approximation with its size in ``docs/detector_response.md``):
   incoherent rate (which includes binding); no Doppler broadening.
 * Pair production (nuclear and electron field): ``E - 2 m c^2`` deposited locally, then two
   511 keV photons back to back, isotropic, from the interaction point.
-* Rayleigh scattering: turns the photon with the Thomson law ``(1 + cos^2)``, no form factor.
+* Rayleigh scattering: turns the photon with the Thomson law ``(1 + cos^2)``, no form factor
+  (too wide; ``rayleigh="forward"``, no deflection, is too narrow: the two bracket it).
 * Electrons and positrons deposit their kinetic energy where they are made (no range, no
   bremsstrahlung escape).  Photons below 1 keV are absorbed.
 * The crystal is bare: no housing, window or reflector.
@@ -368,6 +369,7 @@ def simulate_deposits(
     n_photons: int = 100_000,
     n_fine: int = 1024,
     forced: bool = True,
+    rayleigh: str = "thomson",
     seed: Any = None,
 ) -> DepositSpectrum:
     """Monte Carlo of the energy deposits of photons of one energy in one detector.
@@ -392,6 +394,9 @@ def simulate_deposits(
     forced : bool
         Force the first interaction (each ray weighted by ``1 - exp(-mu l)``: the
         interaction probability then has only the rays' geometric variance).  False: analog.
+    rayleigh : {"thomson", "forward"}
+        Angular law of Rayleigh scattering: Thomson's ``1 + cos^2`` (no form factor: too
+        wide) or no deflection (too narrow); the two bracket the truth (docs).
     seed : None, int, SeedSequence or Generator
 
     Returns
@@ -408,6 +413,8 @@ def simulate_deposits(
     nf = as_int(n_fine, "n_fine", 16, 65536)
     if not isinstance(forced, bool | np.bool_):
         raise ParameterError(f"forced must be True or False, got {forced!r}")
+    if rayleigh not in ("thomson", "forward"):
+        raise ParameterError(f"rayleigh must be 'thomson' or 'forward', got {rayleigh!r}")
     dist = None
     if distance is not None:
         dist = as_scalar(distance, "distance", lo=0.0, lo_open=True)
@@ -416,11 +423,13 @@ def simulate_deposits(
                 f"theta must be 0 with a point source (distance), got {math.degrees(th):g} deg"
             )
     med = _medium(det, e)
-    return _run(det, med, e, th, dist, n, nf, bool(forced), seed_sequence(seed))
+    return _run(det, med, e, th, dist, n, nf, bool(forced), seed_sequence(seed),
+                rayleigh == "thomson")
 
 
 def _run(det: DetectorArray, med: _Medium, e: float, th: float, dist: float | None, n: int,
-         nf: int, forced: bool, root: np.random.SeedSequence) -> DepositSpectrum:
+         nf: int, forced: bool, root: np.random.SeedSequence,
+         thomson: bool = True) -> DepositSpectrum:
     m = min(_N_CHUNKS, n)
     nphot = np.full(m, n // m, dtype=np.int64)
     nphot[: n % m] += 1
@@ -431,7 +440,7 @@ def _run(det: DetectorArray, med: _Medium, e: float, th: float, dist: float | No
     _k.deposit_kernel(states, nphot, e, np.int64(0 if dist is None else 1), math.sin(th),
                       math.cos(th), 1.0 if dist is None else dist, R, H, forced, med.table,
                       med.ln0, med.inv_dln, np.int64(med.lines.shape[0]), med.lines, 1.0,
-                      hist, tally)
+                      thomson, hist, tally)
     if dist is None:
         # Rays were drawn uniformly over the shadow; per photon crossing the top face's
         # area, scale by shadow area / face area.
@@ -539,6 +548,7 @@ def tabulate_response(
     resolution: EnergyResolution | None = None,
     n_photons: int = 20_000,
     n_fine: int = 1024,
+    rayleigh: str = "thomson",
     seed: Any = None,
 ) -> DetectorResponse:
     """Tabulate a detector's response (interaction probability and redistribution).
@@ -559,6 +569,8 @@ def tabulate_response(
         Photons per (angle, energy).
     n_fine : int
         Fine deposit bins per energy.
+    rayleigh : {"thomson", "forward"}
+        See :func:`simulate_deposits`.
     seed : None, int, SeedSequence or Generator
 
     Returns
@@ -579,6 +591,8 @@ def tabulate_response(
         )
     n = as_int(n_photons, "n_photons", 100, MAX_PHOTONS)
     nf = as_int(n_fine, "n_fine", 16, 65536)
+    if rayleigh not in ("thomson", "forward"):
+        raise ParameterError(f"rayleigh must be 'thomson' or 'forward', got {rayleigh!r}")
     med = _medium(det, float(e[-1]))
     roots = seed_sequence(seed).spawn(ang.size * e.size)
     inter = np.empty((ang.size, e.size))
@@ -588,7 +602,7 @@ def tabulate_response(
     for a, t in enumerate(ang):
         for i, ei in enumerate(e):
             s = _run(det, med, float(ei), math.radians(t), None, n, nf, True,
-                     roots[a * e.size + i])
+                     roots[a * e.size + i], rayleigh == "thomson")
             inter[a, i] = s.interaction
             err[a, i] = s.interaction_error
             full[a, i] = s.full_energy

@@ -44,6 +44,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 from scipy.special import ndtr
 
@@ -278,7 +279,7 @@ class DepositSpectrum:
     def above(self, threshold: Any) -> float:
         """Probability, given an interaction, of a deposit ``>= threshold`` keV (fine bins
         counted by their centres; the full-energy peak included)."""
-        t = as_scalar(threshold, "threshold", lo=0.0)
+        t = as_scalar(threshold, "threshold", u.keV, lo=0.0)
         return float(self.continuum[self.centres >= t].sum() + self.full_energy)
 
     def peak_to_total(self, threshold: Any = 0.0, window: Any = 0.0) -> float:
@@ -290,15 +291,15 @@ class DepositSpectrum:
     def peak_fraction(self, window: Any = 0.0) -> float:
         """Probability, given an interaction, of a deposit in ``[energy - window, energy]``
         (fine bins by their centres; ``window = 0``: the full energy alone)."""
-        w = as_scalar(window, "window", lo=0.0)
+        w = as_scalar(window, "window", u.keV, lo=0.0)
         near = self.centres >= self.energy - w if w > 0 else np.zeros(self.centres.size, bool)
         return float(self.full_energy + self.continuum[near].sum())
 
     def error(self, what: str, threshold: Any = 0.0, window: Any = 0.0) -> float:
         """Jackknife standard error (over batches) of ``"full_energy"`` (with ``window``:
         :meth:`peak_fraction`), ``"peak_to_total"`` or ``"interaction"``."""
-        t = as_scalar(threshold, "threshold", lo=0.0)
-        w = as_scalar(window, "window", lo=0.0)
+        t = as_scalar(threshold, "threshold", u.keV, lo=0.0)
+        w = as_scalar(window, "window", u.keV, lo=0.0)
         b = self.batches
         n_fine = self.continuum.size
         allw = b[:, n_fine + 2]
@@ -417,7 +418,7 @@ def simulate_deposits(
         raise ParameterError(f"rayleigh must be 'thomson' or 'forward', got {rayleigh!r}")
     dist = None
     if distance is not None:
-        dist = as_scalar(distance, "distance", lo=0.0, lo_open=True)
+        dist = as_scalar(distance, "distance", u.cm, lo=0.0, lo_open=True)
         if th != 0.0:
             raise ParameterError(
                 f"theta must be 0 with a point source (distance), got {math.degrees(th):g} deg"

@@ -249,12 +249,13 @@ def _history(st, px, py, pz, dx, dy, dz, e, s_first, R, H, table, ln0, inv_dln, 
                 if line < 0:
                     edep += e
                     break
+                # Its line: ``lines[j, 2k]`` energies, ``lines[j, 2k + 1]`` cumulative
+                # probabilities (the last 1).
                 w = _u01(st)
-                ex = lines[line, 0]
-                if w >= lines[line, 1]:
-                    ex = lines[line, 2]
-                    if w >= lines[line, 3]:
-                        ex = lines[line, 4]
+                k = 0
+                while w >= lines[line, 2 * k + 1] and 2 * k + 3 < lines.shape[1]:
+                    k += 1
+                ex = lines[line, 2 * k]
                 edep += e - ex
                 e = ex
                 dx, dy, dz = _isotropic(st)

@@ -17,7 +17,10 @@ import rotmod
 
 SRC = Path(rotmod.__file__).resolve().parent
 #: Top-level private helper modules meant to be shared by every package.
-SHARED_PRIVATE = {"rotmod._validate", "rotmod._deps"}
+SHARED_PRIVATE = {"rotmod._validate", "rotmod._deps",
+                  # One random number generator for every numba kernel (Monte Carlo of the
+                  # instrument and of the detectors' energy response).
+                  "rotmod.montecarlo._rng"}
 #: The only imports of rotmod modules inside functions: a lower-layer class that offers
 #: ``.read``/``.write`` delegating to the file layer (rotmod.io), which builds on it (at module
 #: level each would be a cycle; inside the method it runs after both modules are loaded), and

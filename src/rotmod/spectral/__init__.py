@@ -1,10 +1,18 @@
 """Energies: the detectors' energy response, the atmosphere above a balloon, and source spectra.
 
 Responses elsewhere in rotmod are monoenergetic: the modulation of one band.  This package
-holds what turns them into spectra in physical units: spectral models in astromodels'
-conventions (:mod:`rotmod.spectral.models`), counts spectra with their response (RMF x ARF) and
-forward-folded Poisson fits (:mod:`rotmod.spectral.spectrum`; OGIP files in
-:mod:`rotmod.io.ogip`).
+holds what turns them into spectra in physical units:
+
+* :mod:`rotmod.spectral.models`: spectral models in astromodels' conventions;
+* :mod:`rotmod.spectral.spectrum`: counts spectra with their response (RMF x ARF) and
+  forward-folded Poisson fits (OGIP files in :mod:`rotmod.io.ogip`);
+* :mod:`rotmod.spectral.detector`: the detectors' energy response (a Monte Carlo of photon
+  transport in a cylinder, tabulated redistribution matrices);
+* :mod:`rotmod.spectral.atmosphere`: the residual atmosphere's column and transmission above a
+  balloon (NRLMSIS via pymsis).
+
+The first two are re-exported here; the last two are imported from their modules (they load
+numba kernels and astropy's coordinates, which a reader of spectra does not need).
 """
 
 from rotmod.spectral.models import Band, CutoffPowerLaw, Gaussian, PowerLaw, SpectralModel

@@ -11,10 +11,9 @@ photoelectric, pair as linear coefficients in 1/cm, then per fluorescing element
 cumulative probability that a photoabsorption emits a K x-ray of that element) and
 interpolated linearly in ``ln E``.
 
-Random numbers: xoshiro256+ (D. Blackman & S. Vigna, ACM TOMS 47, 36 (2021)), one state per
+Random numbers: the Monte Carlo's xoshiro256+ (:mod:`rotmod.montecarlo._rng`), one state per
 chunk, seeded from :class:`numpy.random.SeedSequence` children, so results depend on the seed
-and the chunking but not on the threads.  (The same generator as the Monte Carlo's; the copy
-keeps rotmod.spectral off rotmod.montecarlo's private modules.)
+and the chunking but not on the threads.
 """
 
 from __future__ import annotations
@@ -24,48 +23,13 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from rotmod.montecarlo._rng import next_double as _u01
+
 #: Electron rest energy (keV), CODATA 2018.
 ME_KEV = 510.99895
 
-_U11 = np.uint64(11)
-_U17 = np.uint64(17)
-_U45 = np.uint64(45)
-_U19 = np.uint64(19)
-_TWO_M53 = 1.0 / 9007199254740992.0
-
 #: Fine deposit histogram: counts with ``edep >= (1 - FULL_TOL) E`` are the full-energy peak.
 FULL_TOL = 1e-9
-
-
-def states_for(root: np.random.SeedSequence, n: int) -> np.ndarray:
-    """xoshiro256+ states (uint64[n, 4]) of ``n`` children spawned from ``root``."""
-    out = np.empty((n, 4), dtype=np.uint64)
-    for i, child in enumerate(root.spawn(n)):
-        st = child.generate_state(4, np.uint64)
-        if not st.any():  # the one forbidden state
-            st[0] = np.uint64(0x9E3779B97F4A7C15)
-        out[i] = st
-    return out
-
-
-@njit(cache=True, inline="always")
-def _u01(s):
-    """Next uniform double in [0, 1) from the xoshiro256+ state ``s`` (updated)."""
-    s0 = s[0]
-    s1 = s[1]
-    s2 = s[2] ^ s0
-    s3 = s[3] ^ s1
-    result = s0 + s[3]
-    t = s1 << _U17
-    s1 = s1 ^ s2
-    s0 = s0 ^ s3
-    s2 = s2 ^ t
-    s3 = (s3 << _U45) | (s3 >> _U19)
-    s[0] = s0
-    s[1] = s1
-    s[2] = s2
-    s[3] = s3
-    return (result >> _U11) * _TWO_M53
 
 
 @njit(cache=True, inline="always")

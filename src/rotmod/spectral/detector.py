@@ -54,6 +54,7 @@ from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray
 from rotmod.materials import DATABASE_RANGE_KEV, partial_attenuation
 from rotmod.montecarlo import seed_sequence
+from rotmod.montecarlo._rng import chunk_states
 from rotmod.spectral import _detector_kernels as _k
 
 __all__ = [
@@ -446,7 +447,7 @@ def _run(det: DetectorArray, med: _Medium, e: float, th: float, dist: float | No
     m = min(_N_CHUNKS, n)
     nphot = np.full(m, n // m, dtype=np.int64)
     nphot[: n % m] += 1
-    states = _k.states_for(root, m)
+    states = chunk_states(root, m)
     hist = np.zeros((m, nf))
     tally = np.zeros((m, 5))
     R, H = det.radius, det.thickness
@@ -630,5 +631,5 @@ def sample_klein_nishina(energy: Any, n: int, seed: Any = None) -> tuple[np.ndar
     n = as_int(n, "n", 1, MAX_PHOTONS)
     eps = np.empty(n)
     cos = np.empty(n)
-    _k.compton_many(_k.states_for(seed_sequence(seed), 4), e / _k.ME_KEV, n, eps, cos)
+    _k.compton_many(chunk_states(seed_sequence(seed), 4), e / _k.ME_KEV, n, eps, cos)
     return eps, cos

@@ -82,7 +82,8 @@ def position_grid(grid: SkyGeometry, positions: Any) -> SkyGeometry:
     return DirectionList(np.atleast_1d(theta), np.atleast_1d(phi))
 
 
-def columns_at(response: ResponseOperator, positions: Any) -> np.ndarray:
+def columns_at(response: ResponseOperator, positions: Any, *, energy: Any = None
+               ) -> np.ndarray:
     """Response columns ``c[d, t, k]`` (float64) at ``positions``.
 
     Parameters
@@ -91,6 +92,9 @@ def columns_at(response: ResponseOperator, positions: Any) -> np.ndarray:
         Any response with a spec (every operator rotmod builds or stores).
     positions : SkyCoord or (theta, phi)
         See :func:`position_grid`.
+    energy : float or Quantity, optional
+        Photon energy (keV) of the columns; default the response's own (an energy-resolved
+        response evaluates them at every true energy, :mod:`rotmod.sources.spectra`).
 
     Returns
     -------
@@ -99,12 +103,16 @@ def columns_at(response: ResponseOperator, positions: Any) -> np.ndarray:
     """
     if isinstance(response, UnfoldedResponse):
         # Its rows are the folded responses' rows, picked per time bin and weighted.
-        return response.gather([columns_at(p, positions) for p in response.parts])
+        return response.gather([columns_at(p, positions, energy=energy)
+                                for p in response.parts])
     out = np.zeros((response.n_det, response.n_time, 0))
     for weights, spec in response.components():
         points = position_grid(spec.grid, positions)
         with _threads_for(response.n_det * response.n_time * points.size):
-            part = build_response(spec.replace(grid=points, dtype=np.float64)).matrix
+            at = spec.replace(grid=points, dtype=np.float64)
+            if energy is not None:
+                at = at.replace(energy=energy)
+            part = build_response(at).matrix
         if weights is not None:
             part = part * np.asarray(weights, dtype=float)[None, :, None]
         out = part if out.shape[2] == 0 else out + part

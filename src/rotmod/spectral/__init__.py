@@ -20,8 +20,10 @@ from rotmod.spectral.spectrum import (
     CountsSpectrum,
     SpectralFit,
     SpectralResponse,
+    StatisticMinimum,
     cash,
     fit_spectrum,
+    minimise_statistic,
     wstat,
 )
 
@@ -34,7 +36,9 @@ __all__ = [
     "SpectralFit",
     "SpectralModel",
     "SpectralResponse",
+    "StatisticMinimum",
     "cash",
     "fit_spectrum",
+    "minimise_statistic",
     "wstat",
 ]

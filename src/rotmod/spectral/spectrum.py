@@ -23,7 +23,7 @@ numbers there.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,7 +35,8 @@ from rotmod.errors import ParameterError
 from rotmod.spectral.models import SpectralModel
 
 __all__ = [
-    "CountsSpectrum", "SpectralFit", "SpectralResponse", "cash", "fit_spectrum", "wstat",
+    "CountsSpectrum", "SpectralFit", "SpectralResponse", "StatisticMinimum", "cash",
+    "fit_spectrum", "minimise_statistic", "wstat",
 ]
 
 
@@ -272,68 +273,136 @@ def fit_spectrum(
     """
     if spectrum.response is None:
         raise ParameterError("spectrum has no response; fit_spectrum needs one")
-    names = list(model.parameters)
-    free = tuple(free) if free is not None else tuple(p for p in names if p != "piv")
-    bad = [p for p in free if p not in names]
-    if bad or not free:
-        raise ParameterError(f"free must name parameters of {type(model).__name__} ({names}), "
-                             f"got {list(free)}")
     chans = np.arange(spectrum.counts.size)[channels if channels is not None else slice(None)]
     stat, stat_name = _objective(spectrum, chans)
-    positive = set(type(model)._positive)
-    # Positive parameters are fitted in log so that the optimiser never leaves the domain.
-    logp = np.array([p in positive for p in free])
-    lims = np.array([type(model).limits.get(p, (-np.inf, np.inf)) for p in free])
-    start = np.clip([model.parameters[p] for p in free], lims[:, 0], lims[:, 1]).astype(float)
-    x0 = _to_fit(start, logp)
+    best = minimise_statistic(lambda models: stat(models[0]), [model],
+                              None if free is None else [free])
+    return SpectralFit(best.models[0], best.free[0], best.errors[0], best.covariance,
+                       best.statistic, stat_name, int(chans.size), best.pegged[0])
 
-    def build(x: np.ndarray) -> SpectralModel:
-        vals = np.where(logp, np.exp(x), x)
-        return model.with_parameters(**dict(zip(free, vals.tolist(), strict=True)))
 
-    def f(x: np.ndarray) -> float:
-        vals = np.where(logp, np.exp(x), x)
-        if np.any(vals < lims[:, 0]) or np.any(vals > lims[:, 1]):
+@dataclass(frozen=True)
+class StatisticMinimum:
+    """Result of :func:`minimise_statistic`: per model the fitted copy, its free parameters,
+    their errors and the pegged ones; the covariance of all free parameters (models in
+    order) and the statistic at the minimum."""
+
+    models: tuple[SpectralModel, ...]
+    free: tuple[tuple[str, ...], ...]
+    errors: tuple[dict[str, float], ...]
+    pegged: tuple[tuple[str, ...], ...]
+    covariance: np.ndarray
+    statistic: float
+
+
+def minimise_statistic(
+    statistic: Callable[[list[SpectralModel]], float],
+    models: Sequence[SpectralModel],
+    free: Sequence[Sequence[str]] | None = None,
+) -> StatisticMinimum:
+    """Minimise ``statistic(models)`` (``-2 ln L`` up to a constant) over the models' free
+    parameters; errors from its curvature.
+
+    Positive parameters are searched in log (the optimiser never leaves their domain), every
+    parameter within its model's :attr:`~rotmod.spectral.models.SpectralModel.limits`;
+    Nelder-Mead then Powell (which finishes long valleys Nelder-Mead stalls in).  The
+    covariance is ``2 H^-1`` of the statistic's Hessian in the natural parameters
+    (central differences), with pegged parameters (at a limit) held.  Every spectral fit of
+    rotmod -- a counts spectrum (:func:`fit_spectrum`) or sources on the modulator's counts
+    (:func:`rotmod.sources.spectra.fit_spectra`) -- is this minimisation of its own
+    statistic.
+
+    Parameters
+    ----------
+    statistic : callable
+        ``statistic(list of models) -> float``; may return ``inf`` where the models cannot
+        describe the data.
+    models : sequence of SpectralModel
+        Start values.
+    free : sequence of sequences of str, optional
+        Per model the parameters to fit (default: all but the pivots ``piv``).
+    """
+    models = list(models)
+    if not models or not all(isinstance(m, SpectralModel) for m in models):
+        raise ParameterError("models must be one or more SpectralModel instances")
+    if free is None:
+        free = [tuple(p for p in m.parameters if p != "piv") for m in models]
+    if len(free) != len(models):
+        raise ParameterError(f"free must give one list of parameters per model ({len(models)}),"
+                             f" got {len(free)}")
+    free = [tuple(f) for f in free]
+    for m, f in zip(models, free, strict=True):
+        names = list(m.parameters)
+        if any(p not in names for p in f) or len(set(f)) != len(f):
+            raise ParameterError(f"free must name parameters of {type(m).__name__} ({names}),"
+                                 f" got {list(f)}")
+    if not any(free):
+        raise ParameterError("free names no parameter: nothing to fit")
+    owner = [(i, p) for i, f in enumerate(free) for p in f]
+    logp = np.array([p in type(models[i])._positive for i, p in owner])
+    lims = np.array([type(models[i]).limits.get(p, (-np.inf, np.inf)) for i, p in owner])
+    start = np.array([models[i].parameters[p] for i, p in owner], dtype=float)
+    start = np.clip(start, lims[:, 0], lims[:, 1])
+
+    def build(vals: np.ndarray) -> list[SpectralModel]:
+        out = []
+        for i, m in enumerate(models):
+            sel = [k for k, (j, _) in enumerate(owner) if j == i]
+            out.append(m.with_parameters(**{owner[k][1]: float(vals[k]) for k in sel})
+                       if sel else m)
+        return out
+
+    def f_natural(vals: np.ndarray) -> float:
+        if not np.all(np.isfinite(vals)) or np.any(vals < lims[:, 0]) or np.any(
+                vals > lims[:, 1]):
             return np.inf
         try:
-            return stat(build(x))
+            return float(statistic(build(vals)))
         except ParameterError:  # outside the model's domain (Band beta >= alpha, ...)
             return np.inf
 
-    best = optimize.minimize(f, x0, method="Nelder-Mead",
-                             options={"xatol": 1e-9, "fatol": 1e-10, "maxiter": 20000,
+    def f(x: np.ndarray) -> float:
+        return f_natural(np.where(logp, np.exp(x), x))
+
+    x = _to_fit(start, logp)
+    # Tolerances: 1e-6 in -2 ln L is far below any statistical meaning (1 is one sigma^2)
+    # and above the noise of a statistic that is itself a maximisation (profiled
+    # backgrounds converge to ~1e-8), which a tighter ``fatol`` would chase to ``maxfev``.
+    best = optimize.minimize(f, x, method="Nelder-Mead",
+                             options={"xatol": 1e-8, "fatol": 1e-6, "maxiter": 20000,
                                       "maxfev": 40000, "adaptive": True})
     x = best.x
-    # Refine (Nelder-Mead stalls on long valleys), then the curvature in the natural
-    # parameters: d2(-2 ln L)/dp2 = 2 I, so cov = 2 H^-1.
     with np.errstate(invalid="ignore"):  # Powell's line search meets inf beyond a limit
         best = optimize.minimize(f, x, method="Powell", options={"xtol": 1e-10, "ftol": 1e-12})
     x = best.x if best.fun <= f(x) else x
-    fitted = build(x)
-    p_hat = np.array([fitted.parameters[p] for p in free])
-    # Pegged: within 1e-4 of the limit's scale of a limit (the optimiser stops at the wall).
+    p_hat = np.where(logp, np.exp(x), x)
+    # Pegged: within 1e-4 (of the limit's scale) of a finite limit.
     finite = np.isfinite(lims)
-    scale = 1e-4 * np.maximum(np.abs(np.where(finite, lims, 0.0)), 1.0)
-    at = np.any(finite & (np.abs(p_hat[:, None] - np.where(finite, lims, 0.0)) <= scale), axis=1)
+    wall = np.where(finite, lims, 0.0)
+    scale = 1e-4 * np.maximum(np.abs(wall), 1.0)
+    at = np.any(finite & (np.abs(p_hat[:, None] - wall) <= scale), axis=1)
     inner = np.flatnonzero(~at)
-    cov = np.full((len(free), len(free)), np.nan)
+    cov = np.full((len(owner), len(owner)), np.nan)
     if inner.size:
 
         def f_inner(p: np.ndarray) -> float:
             full = p_hat.copy()
             full[inner] = p
-            return f(_to_fit(full, logp))
+            return f_natural(full)
 
-        h = _hessian(f_inner, p_hat[inner])
         try:
-            cov[np.ix_(inner, inner)] = 2.0 * np.linalg.inv(h)
+            cov[np.ix_(inner, inner)] = 2.0 * np.linalg.inv(_hessian(f_inner, p_hat[inner]))
         except np.linalg.LinAlgError:
             pass
     var = np.diag(cov)
     err = np.sqrt(np.where(var > 0, var, np.nan))
-    return SpectralFit(fitted, free, dict(zip(free, err.tolist(), strict=True)), cov,
-                       float(f(x)), stat_name, int(chans.size),
-                       tuple(p for p, a in zip(free, at, strict=True) if a))
+    fitted = build(p_hat)
+    errors = tuple({p: float(err[k]) for k, (j, p) in enumerate(owner) if j == i}
+                   for i in range(len(models)))
+    pegged = tuple(tuple(p for k, (j, p) in enumerate(owner) if j == i and at[k])
+                   for i in range(len(models)))
+    return StatisticMinimum(tuple(fitted), tuple(free), errors, pegged, cov,
+                            float(f_natural(p_hat)))
 
 
 def _to_fit(p: np.ndarray, logp: np.ndarray) -> np.ndarray:

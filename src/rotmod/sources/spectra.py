@@ -1,0 +1,277 @@
+"""Spectra of sources in the field: forward-folded fits on the modulator's counts per channel.
+
+A point source of spectrum ``dN/dE`` (photons cm^-2 s^-1 keV^-1) at instrument zenith
+``theta`` puts into detector ``d``, mask-angle bin ``t`` and energy channel ``c``
+
+    mu[d, t, c] = T[d, t] sum_e F_e  (pi R^2 cos theta)  P_d(t; E_e)  M(theta; E_e -> c),
+
+with ``F_e`` the photons cm^-2 s^-1 of true-energy bin ``e`` (the model's exact bin integral),
+``pi R^2 cos theta`` the face's projected area, which turns the response's sky unit (photons
+per second on one unobstructed face, docs/conventions.md) into a photon flux, ``P_d(t; E)``
+the response's column at energy ``E`` (the slats' and the detector's attenuation change with
+energy; for a thick detector ``P`` counts interactions), and ``M`` the detector's
+redistribution given an interaction (:mod:`rotmod.spectral.detector`).  The columns and the
+redistribution are both evaluated at the bin's node energy.
+
+:func:`fit_spectra` fits every source's spectral parameters at once with a background level
+per detector and channel (constant over the mask-angle bins), fitted, not given: for each
+trial of the spectral parameters the backgrounds are profiled out exactly
+(:func:`rotmod.sources.likelihood.maximise`), and the spectral parameters minimise ``-2 ln L``
+(:func:`rotmod.spectral.minimise_statistic`, the one optimiser of every spectral fit).
+
+Approximations, stated: the redistribution of a detector is the one of a uniformly lit face
+(the mask's shadow changes which part of the crystal is lit, which changes the escape
+probabilities slightly); the redistribution and the columns are constant within a true-energy
+bin (make the bins narrower than the resolution).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from rotmod.errors import ParameterError
+from rotmod.events import EventList, fold
+from rotmod.limits import check_memory
+from rotmod.response.columns import columns_at, position_grid
+from rotmod.response.operator import ResponseOperator
+from rotmod.sources.likelihood import Groups, maximise
+from rotmod.spectral.detector import DetectorResponse
+from rotmod.spectral.models import SpectralModel
+from rotmod.spectral.spectrum import minimise_statistic
+
+__all__ = [
+    "SourceSpectraFit", "SpectralColumns", "expected_counts", "fit_spectra", "fold_channels",
+    "node_edges", "spectral_columns",
+]
+
+
+def node_edges(nodes: np.ndarray) -> np.ndarray:
+    """True-energy bin edges around node energies: geometric midpoints, the outer edges as
+    far (in log) beyond the end nodes as the nearest midpoints."""
+    ln = np.log(nodes)
+    mid = 0.5 * (ln[1:] + ln[:-1])
+    return np.exp(np.concatenate([[2 * ln[0] - mid[0]], mid, [2 * ln[-1] - mid[-1]]]))
+
+
+@dataclass(frozen=True, eq=False)
+class SpectralColumns:
+    """The energy-resolved response of point sources at fixed positions.
+
+    Attributes
+    ----------
+    columns : ndarray, shape (n_src, n_e, n_det, n_time)
+        Counts per second in each detector and bin per photon cm^-2 s^-1 at each node
+        energy (the response's column times the face's projected area).
+    redistribution : ndarray, shape (n_src, n_e, n_c)
+        The detector's redistribution at each source's zenith angle.
+    energy_edges : ndarray, shape (n_e + 1,)
+        True-energy bins (keV) around the nodes (:func:`node_edges`).
+    channel_edges : ndarray, shape (n_c + 1,)
+    theta : ndarray, shape (n_src,)
+        Zenith angles (deg).
+    """
+
+    columns: np.ndarray
+    redistribution: np.ndarray
+    energy_edges: np.ndarray
+    channel_edges: np.ndarray
+    theta: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """``(n_det, n_time, n_channels)`` of the counts it predicts."""
+        return (*self.columns.shape[2:], self.redistribution.shape[2])
+
+    def rates(self, k: int, model: SpectralModel) -> np.ndarray:
+        """Counts per second ``(n_det, n_time, n_c)`` of source ``k`` with spectrum ``model``."""
+        flux = model.integral(self.energy_edges[:-1], self.energy_edges[1:])
+        n_det, n_t, n_c = self.shape
+        # sum_e F_e col[e, d, t] M[e, c], as one (n_det n_t, n_e) x (n_e, n_c) product.
+        m = flux[:, None] * self.redistribution[k]
+        return (self.columns[k].reshape(len(flux), -1).T @ m).reshape(n_det, n_t, n_c)
+
+
+def spectral_columns(
+    response: ResponseOperator, positions: Any, detector_response: DetectorResponse,
+) -> SpectralColumns:
+    """The energy-resolved response of point sources at ``positions``.
+
+    Parameters
+    ----------
+    response : ResponseOperator
+        A response of the instrument (its binning, model and sky frame are used; its
+        energy is replaced by each node energy).  One attitude: a drifting observation's
+        sum over attitudes is not supported yet.
+    positions : SkyCoord or (theta, phi)
+        The sources (:func:`rotmod.response.columns_at`).
+    detector_response : DetectorResponse
+        The detectors' redistribution, tabulated at the true-energy nodes
+        (:func:`rotmod.spectral.detector.tabulate_response`) for the instrument's detectors.
+
+    Returns
+    -------
+    SpectralColumns
+    """
+    if not isinstance(response, ResponseOperator):
+        raise ParameterError(f"response must be a ResponseOperator, got {type(response).__name__}")
+    if not isinstance(detector_response, DetectorResponse):
+        raise ParameterError("detector_response must be a rotmod.spectral.detector."
+                             f"DetectorResponse, got {type(detector_response).__name__}")
+    parts = response.components()
+    if len(parts) != 1 or parts[0][0] is not None:
+        raise ParameterError(
+            "response: spectral fits take a response of one attitude; a drifting observation "
+            f"({len(parts)} attitude intervals) is not supported yet")
+    spec = parts[0][1]
+    det = spec.instrument.detectors
+    if det.thickness <= 0:
+        raise ParameterError(
+            "response: the instrument's detectors must have a thickness and a material for an "
+            "energy response (a flat face counts every photon at every energy)")
+    nodes = np.asarray(detector_response.energies, dtype=float)
+    theta = np.degrees(position_grid(spec.grid, positions).directions()[0].value)
+    n_det, n_t = response.n_det, response.n_time
+    check_memory(8.0 * theta.size * nodes.size * n_det * n_t,
+                 f"the columns of {theta.size} sources at {nodes.size} energies",
+                 hint="tabulate the detector response at fewer energies")
+    cols = np.empty((theta.size, nodes.size, n_det, n_t))
+    for e, energy in enumerate(nodes):
+        cols[:, e] = np.moveaxis(columns_at(response, positions, energy=energy), 2, 0)
+    area = np.pi * det.radius**2 * np.cos(np.radians(theta))
+    cols *= area[:, None, None, None]
+    red = detector_response.matrix_at(theta)
+    return SpectralColumns(cols, red, node_edges(nodes),
+                           np.asarray(detector_response.channel_edges, dtype=float), theta)
+
+
+@dataclass(frozen=True)
+class SourceSpectraFit:
+    """Result of :func:`fit_spectra`.
+
+    Attributes
+    ----------
+    models : tuple of SpectralModel
+        Each source's spectrum at the best fit.
+    errors : tuple of dict
+        Per source, 1-sigma errors of its free parameters (curvature of ``-2 ln L`` with the
+        backgrounds profiled; NaN for a pegged parameter).
+    pegged : tuple of tuple of str
+        Per source, parameters at a search limit.
+    covariance : ndarray
+        Of all free parameters, sources in order.
+    background : ndarray, shape (n_det, n_c)
+        Background rate (counts/s) per detector and channel at the best fit.
+    loglike : float
+        ``ln L`` at the maximum (less the data's constant,
+        :func:`rotmod.sources.likelihood.log_likelihood`).
+    """
+
+    models: tuple[SpectralModel, ...]
+    errors: tuple[dict[str, float], ...]
+    pegged: tuple[tuple[str, ...], ...]
+    covariance: np.ndarray
+    background: np.ndarray
+    loglike: float
+
+
+def fit_spectra(
+    columns: SpectralColumns,
+    counts: Any,
+    exposure: Any,
+    models: Sequence[SpectralModel],
+    *,
+    free: Sequence[Sequence[str]] | None = None,
+) -> SourceSpectraFit:
+    """Fit the sources' spectra to counts per detector, mask-angle bin and channel.
+
+    Parameters
+    ----------
+    columns : SpectralColumns
+        The sources' energy-resolved response (:func:`spectral_columns`).
+    counts : array_like of int, shape (n_det, n_time, n_c)
+        Counts (e.g. events folded per channel, :func:`fold_channels`).
+    exposure : array_like, shape (n_time,) or (n_det, n_time)
+        Good time (s) per bin.
+    models : sequence of SpectralModel
+        One per source, the start values.
+    free : sequence of sequences of str, optional
+        Per source the parameters to fit (default all but ``piv``).
+
+    Returns
+    -------
+    SourceSpectraFit
+    """
+    if not isinstance(columns, SpectralColumns):
+        raise ParameterError(f"columns must be SpectralColumns, got {type(columns).__name__}")
+    n_det, n_t, n_c = columns.shape
+    y = np.asarray(counts)
+    if y.shape != (n_det, n_t, n_c):
+        raise ParameterError(f"counts must have shape (n_det, n_time, n_channels) = "
+                             f"{(n_det, n_t, n_c)}, got {y.shape}")
+    if not np.all(np.isfinite(y)) or np.any(y < 0) or np.any(y != np.round(y)):
+        raise ParameterError("counts must be non-negative integers")
+    expo = np.broadcast_to(np.asarray(exposure, dtype=float), (n_det, n_t)) if np.ndim(
+        exposure) in (1, 2) else None
+    if expo is None or expo.shape != (n_det, n_t) or not np.all(np.isfinite(expo)) or np.any(
+            expo < 0):
+        raise ParameterError(f"exposure must be finite seconds >= 0 of shape ({n_t},) or "
+                             f"({n_det}, {n_t})")
+    if len(models) != columns.columns.shape[0]:
+        raise ParameterError(f"models must give one spectrum per source "
+                             f"({columns.columns.shape[0]}), got {len(models)}")
+    use = np.broadcast_to((expo > 0)[:, :, None], y.shape).ravel()
+    yv = y.astype(float).ravel()[use]
+    t3 = np.broadcast_to(expo[:, :, None], y.shape).ravel()[use]
+    group = (np.arange(n_det)[:, None, None] * n_c + np.arange(n_c)[None, None, :])
+    groups = Groups(np.broadcast_to(group, y.shape).ravel()[use], t3, n_det * n_c)
+    empty = np.zeros((yv.size, 0))
+    state: dict[str, Any] = {"x0": None}
+
+    def profile(ms: list[SpectralModel]) -> tuple[float, Any]:
+        m0 = sum(columns.rates(k, m).ravel()[use] for k, m in enumerate(ms)) * t3
+        best = maximise(empty, yv, m0, state["x0"], groups=groups)
+        return best.loglike, best
+
+    def statistic(ms: list[SpectralModel]) -> float:
+        ll, best = profile(ms)
+        if np.isfinite(ll):
+            state["x0"] = np.maximum(best.x, 1e-12 * max(yv.mean(), 1.0))
+        return -2.0 * ll
+
+    found = minimise_statistic(statistic, models, free)
+    ll, best = profile(list(found.models))
+    return SourceSpectraFit(found.models, found.errors, found.pegged, found.covariance,
+                            best.x.reshape(n_det, n_c), float(ll))
+
+
+def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[SpectralModel],
+                    background: Any = 0.0) -> np.ndarray:
+    """Expected counts ``(n_det, n_time, n_c)`` of the sources' spectra plus a background
+    rate per detector and channel (counts/s, broadcast to ``(n_det, n_c)``)."""
+    n_det, n_t, n_c = columns.shape
+    expo = np.broadcast_to(np.asarray(exposure, dtype=float), (n_det, n_t))
+    rate = sum(columns.rates(k, m) for k, m in enumerate(models)) + np.broadcast_to(
+        np.asarray(background, dtype=float), (n_det, n_c))[:, None, :]
+    return rate * expo[:, :, None]
+
+
+
+def fold_channels(events: EventList, time_bins: Any, channel_edges: Any
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Fold an event list per energy channel: counts ``(n_det, n_time, n_c)`` and the
+    exposure ``(n_time,)`` or ``(n_det, n_time)`` (s) of :func:`rotmod.events.fold`.
+
+    Channel ``c`` takes ``channel_edges[c] <= ENERGY < channel_edges[c + 1]`` (half-open, so
+    an event on an inner edge is counted once).
+    """
+    edges = np.asarray(channel_edges, dtype=float)
+    if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0) or edges[0] < 0:
+        raise ParameterError("channel_edges must be at least two increasing energies >= 0 keV")
+    folded = [fold(events, time_bins, energy_band=(lo, np.nextafter(hi, -np.inf)))
+              for lo, hi in itertools.pairwise(edges)]
+    return np.stack([f.counts for f in folded], axis=2), folded[0].exposure

@@ -97,7 +97,8 @@ class SpectralColumns:
 
 
 def spectral_columns(
-    response: ResponseOperator, positions: Any, detector_response: DetectorResponse,
+    response: ResponseOperator, positions: Any, detector_response: DetectorResponse, *,
+    transmission: Any = None,
 ) -> SpectralColumns:
     """The energy-resolved response of point sources at ``positions``.
 
@@ -112,6 +113,13 @@ def spectral_columns(
     detector_response : DetectorResponse
         The detectors' redistribution, tabulated at the true-energy nodes
         (:func:`rotmod.spectral.detector.tabulate_response`) for the instrument's detectors.
+    transmission : array_like, shape (n_src, n_e) or broadcastable, optional
+        Fraction of each source's photons at each node energy that reach the instrument: the
+        residual atmosphere above a balloon, e.g.
+        ``Atmosphere.transmission(nodes[None, :], zenith[:, None], altitude)``
+        (:mod:`rotmod.spectral.atmosphere`; ``zenith`` is the source's angle from the local
+        vertical, not from the instrument axis).  Default 1: fluxes above the atmosphere are
+        then those at the instrument.
 
     Returns
     -------
@@ -144,6 +152,17 @@ def spectral_columns(
         cols[:, e] = np.moveaxis(columns_at(response, positions, energy=energy), 2, 0)
     area = np.pi * det.radius**2 * np.cos(np.radians(theta))
     cols *= area[:, None, None, None]
+    if transmission is not None:
+        try:
+            trans = np.broadcast_to(np.asarray(transmission, dtype=float),
+                                    (theta.size, nodes.size))
+        except ValueError:
+            raise ParameterError(f"transmission must broadcast to (n_sources, n_energies) = "
+                                 f"{(theta.size, nodes.size)}, got shape "
+                                 f"{np.shape(transmission)}") from None
+        if not np.all((trans >= 0) & (trans <= 1)):
+            raise ParameterError("transmission must lie in [0, 1] (a fraction of photons)")
+        cols *= trans[:, :, None, None]
     red = detector_response.matrix_at(theta)
     return SpectralColumns(cols, red, node_edges(nodes),
                            np.asarray(detector_response.channel_edges, dtype=float), theta)
@@ -186,8 +205,18 @@ def fit_spectra(
     models: Sequence[SpectralModel],
     *,
     free: Sequence[Sequence[str]] | None = None,
+    off_counts: Any = None,
+    off_exposure: Any = None,
 ) -> SourceSpectraFit:
     """Fit the sources' spectra to counts per detector, mask-angle bin and channel.
+
+    The background level of each detector and channel is free.  Where it is measured
+    elsewhere -- a burst's background before and after it -- give those counts
+    (``off_counts``, ``off_exposure``): they enter the likelihood as Poisson counts of the
+    same levels, so the levels are fitted to both.  Without them a short, faint-background
+    interval leaves each of the ``n_det x n_c`` levels only the modulation to tell it from the
+    source, and the non-negative levels of nearly empty channels bias the spectrum (measured
+    in benchmarks/spectra_calibration.py).
 
     Parameters
     ----------
@@ -201,6 +230,10 @@ def fit_spectra(
         One per source, the start values.
     free : sequence of sequences of str, optional
         Per source the parameters to fit (default all but ``piv``).
+    off_counts : array_like of int, shape (n_det, n_c), optional
+        Background counts measured without the sources (or with them outside the field).
+    off_exposure : float or array_like, shape (n_det,), optional
+        Their good time (s); required with ``off_counts``.
 
     Returns
     -------
@@ -228,12 +261,31 @@ def fit_spectra(
     yv = y.astype(float).ravel()[use]
     t3 = np.broadcast_to(expo[:, :, None], y.shape).ravel()[use]
     group = (np.arange(n_det)[:, None, None] * n_c + np.arange(n_c)[None, None, :])
-    groups = Groups(np.broadcast_to(group, y.shape).ravel()[use], t3, n_det * n_c)
+    g_index = np.broadcast_to(group, y.shape).ravel()[use]
+    n_on = yv.size
+    if off_counts is not None:
+        off = np.asarray(off_counts)
+        if off.shape != (n_det, n_c) or not np.all(np.isfinite(off)) or np.any(
+                off < 0) or np.any(off != np.round(off)):
+            raise ParameterError(f"off_counts must be non-negative integers of shape "
+                                 f"(n_det, n_channels) = {(n_det, n_c)}")
+        if off_exposure is None:
+            raise ParameterError("off_exposure (s) is required with off_counts")
+        t_off = np.broadcast_to(np.asarray(off_exposure, dtype=float), (n_det,))
+        if not np.all(np.isfinite(t_off)) or np.any(t_off <= 0):
+            raise ParameterError("off_exposure must be finite seconds > 0 (one, or one per "
+                                 "detector)")
+        # One more bin per level: its off counts, expected level x off time.
+        yv = np.concatenate([yv, off.ravel().astype(float)])
+        t3 = np.concatenate([t3, np.repeat(t_off, n_c)])
+        g_index = np.concatenate([g_index, group.ravel()])
+    groups = Groups(g_index, t3, n_det * n_c)
     empty = np.zeros((yv.size, 0))
     state: dict[str, Any] = {"x0": None}
 
     def profile(ms: list[SpectralModel]) -> tuple[float, Any]:
-        m0 = sum(columns.rates(k, m).ravel()[use] for k, m in enumerate(ms)) * t3
+        m0 = np.zeros(yv.size)
+        m0[:n_on] = sum(columns.rates(k, m).ravel()[use] for k, m in enumerate(ms)) * t3[:n_on]
         best = maximise(empty, yv, m0, state["x0"], groups=groups)
         return best.loglike, best
 

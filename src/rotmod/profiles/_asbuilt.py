@@ -125,21 +125,41 @@ def _outline_class(kind, size, cu0, cv0, cu1, cv1, ju0, ju1, jv0, jv1, radius):
 # ``ε`` the counting probability (1 on a flat face), ``N = ∫∫_face w`` and
 # ``E0 = ∫∫ w ε / N`` (1 for a flat face).  Per-point constants are packed in ``prm``:
 (_UB, _GB, _UT, _GT, _CX, _CY, _HX, _HY, _SX, _SY, _SZ, _D0, _AX, _AY, _H, _MU, _R, _FIN, _TAU,
- _DH, _MUD, _DLX, _DLY, _RH, _AIX, _AIY, _SGX, _SGY) = range(28)
-_N_PRM = 28
+ _DH, _MUD, _DLX, _DLY, _RH, _AIX, _AIY, _SGX, _SGY, _BETA, _KAP) = range(30)
+_N_PRM = 30
 # Hull of a thick detector's shadow (``hull``): the two external tangents' contact points on
 # the top face's circle (a) and the bottom face's shadow (b), when they exist.
 _N_HULL = 9
-_INV_SQRT3 = 1.0 / math.sqrt(3.0)
+#: 3-point Gauss–Legendre rule of the chords of a flat face (a source at a finite distance).
+_G3_X = (-math.sqrt(0.6), 0.0, math.sqrt(0.6))
+_G3_W = (5.0 / 9.0, 8.0 / 9.0, 5.0 / 9.0)
 #: Gauss–Legendre rule of the inner integrals along a chord of a thick detector's shadow.
 _G12I_X, _G12I_W = (tuple(v) for v in np.polynomial.legendre.leggauss(12))
 
 
 @njit(cache=True, inline="always")
+def _mobius(x, prm):
+    """``x / (1 - beta x)``: the crossings of the rays of label ``x`` are ``u = u(0) + g
+    x / (1 - beta x)`` (a projective map; ``beta = 0`` for parallel rays or an untilted
+    mask, where it is affine)."""
+    return x / (1.0 - prm[_BETA] * x)
+
+
+@njit(cache=True, inline="always")
+def _label_of(du, g, prm):
+    """The label ``x`` whose crossing is ``u(0) + du`` (``g`` the crossing's gradient at the
+    centre): the inverse of :func:`_mobius`; ``inf`` if no ray of this branch reaches it."""
+    r = du / g
+    den = 1.0 + prm[_BETA] * r
+    return r / den if den > 0.0 else math.inf
+
+
+@njit(cache=True, inline="always")
 def _fraction_at(x, prm, e0, W, cum, p):
-    """Path fraction in slats of the ray labelled ``x`` (its bottom and top crossings)."""
-    ub = prm[_UB] + prm[_GB] * x
-    s = prm[_UT] + prm[_GT] * x - ub
+    """Path fraction in slats of the rays labelled ``x`` (their bottom and top crossings)."""
+    m = _mobius(x, prm)
+    ub = prm[_UB] + prm[_GB] * m
+    s = prm[_UT] + prm[_GT] * m - ub
     if abs(s) <= _S_ZERO * p:
         s = 0.0
     return _path_fraction(ub, s, abs(s), e0, W, cum, p)
@@ -269,6 +289,16 @@ def _inner(x, prm, hull):
     mud = prm[_MUD]
     finite = prm[_FIN] != 0.0
     ell0 = _slab_path(x, 0.0, prm) if finite else 1.0
+    # Where the chord meets the grazing lines (the lines of the hull's tangents).
+    strip = False
+    r1 = lo
+    r2 = hi
+    if hull[0] > 0.0 and hull[1] != hull[3] and hull[5] != hull[7]:
+        ya = hull[2] + (x - hull[1]) * (hull[4] - hull[2]) / (hull[3] - hull[1])
+        yb = hull[6] + (x - hull[5]) * (hull[8] - hull[6]) / (hull[7] - hull[5])
+        r1 = min(min(ya, yb), lo)
+        r2 = max(max(ya, yb), hi)
+        strip = r2 > r1
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
@@ -287,16 +317,27 @@ def _inner(x, prm, hull):
             continue
         de = mud * (max(l1, lm, l2) - min(l1, lm, l2)) if not math.isinf(mud) else 0.0
         nsub = max(1, math.ceil(de / 2.5))
-        step = (y2 - y1) / nsub
+        # y = sm + sh sin(b): the path through the side is sqrt((y - r1) (r2 - y)) times
+        # a smooth function, (r1, r2) where the chord meets the grazing lines (the hull's
+        # tangents), so it is regular in b on every piece, whether or not the piece ends
+        # there.  Without tangents (no grazing ray) each piece is its own [r1, r2].
+        sm = 0.5 * (y1 + y2)
+        sh = 0.5 * (y2 - y1)
+        if strip:
+            sm = 0.5 * (r1 + r2)
+            sh = 0.5 * (r2 - r1)
+        b1 = math.asin(min(max((y1 - sm) / sh, -1.0), 1.0))
+        b2 = math.asin(min(max((y2 - sm) / sh, -1.0), 1.0))
+        step = (b2 - b1) / nsub
         for j in range(nsub):
             hw = 0.5 * step
-            m = y1 + j * step + hw
+            m = b1 + j * step + hw
             a0 = 0.0
             a1 = 0.0
             a2 = 0.0
             for k in range(len(_G12I_X)):
-                b = 0.5 * math.pi * _G12I_X[k]
-                yy = m + hw * math.sin(b)
+                b = m + hw * _G12I_X[k]
+                yy = sm + sh * math.sin(b)
                 ell = _depth_path(x, yy, prm)
                 if ell <= 0.0:
                     continue
@@ -309,7 +350,7 @@ def _inner(x, prm, hull):
                     a1 += v * dl
                     a2 += v * dl * dl
                 a0 += v
-            c = hw * 0.5 * math.pi
+            c = hw * sh
             f0 += a0 * c
             f1 += a1 * c
             f2 += a2 * c
@@ -334,12 +375,18 @@ def _chord_integral(x, f, mode, prm):
     integrand varies on the scale of the source distance): ``G = w (1 - T)`` (``mode`` 0)
     or ``w`` (1)."""
     R = prm[_R]
-    half = math.sqrt(max(R * R - x * x, 0.0))
-    yk = half * _INV_SQRT3
+    kap = prm[_KAP]
+    # The chord is the line of the pencil through (x, 0) and (0, 1 / kap): points
+    # (x (1 - kap y), y), area element (1 - kap y) dx dy.
+    aa = 1.0 + x * x * kap * kap
+    ym = x * x * kap / aa
+    half = math.sqrt(max(R * R - x * x * (1.0 - kap * kap * R * R), 0.0)) / aa
     total = 0.0
-    for k in range(2):
-        w, g = _ray(x, yk if k == 0 else -yk, f, prm)
-        total += w * (g if mode == 0 else 1.0)
+    for k in range(3):
+        y = ym + half * _G3_X[k]
+        jac = 1.0 - kap * y
+        w, g = _ray(x * jac, y, f, prm)
+        total += _G3_W[k] * jac * w * (g if mode == 0 else 1.0)
     return total * half
 
 
@@ -410,11 +457,12 @@ def _lost_pieces(x1, x2, c, cells, vals, prm, e0, W, cum, p):
     gb = prm[_GB]
     ut0 = prm[_UT]
     gt = prm[_GT]
-    R = prm[_R]
-    ja = _first_edge_above(ub0 + gb * x1, e0, W, p)
-    xa = (_edge(ja, e0, W, p) - ub0) / gb
-    jb = _first_edge_above(ut0 + gt * x1, e0, W, p)
-    xb = (_edge(jb, e0, W, p) - ut0) / gt
+    xr = _x_max(prm)
+    m1 = _mobius(x1, prm)
+    ja = _first_edge_above(ub0 + gb * m1, e0, W, p)
+    xa = _label_of(_edge(ja, e0, W, p) - ub0, gb, prm)
+    jb = _first_edge_above(ut0 + gt * m1, e0, W, p)
+    xb = _label_of(_edge(jb, e0, W, p) - ut0, gt, prm)
     cur = x1
     total = 0.0
     while cur < x2:
@@ -422,17 +470,25 @@ def _lost_pieces(x1, x2, c, cells, vals, prm, e0, W, cum, p):
         if nxt > cur:
             if _fraction_at(0.5 * (cur + nxt), prm, e0, W, cum, p) > 0.0:
                 if c < 0:
-                    total += _outer_quad(cur, nxt, -R, R, 0, prm, e0, W, cum, p)
+                    total += _outer_quad(cur, nxt, -xr, xr, 0, prm, e0, W, cum, p)
                 else:
                     total += _cell_quad(cur, nxt, c, cells, vals, True, prm, e0, W, cum, p)
             cur = nxt
         if xa <= cur:
             ja += 1
-            xa = (_edge(ja, e0, W, p) - ub0) / gb
+            xa = _label_of(_edge(ja, e0, W, p) - ub0, gb, prm)
         if xb <= cur:
             jb += 1
-            xb = (_edge(jb, e0, W, p) - ut0) / gt
+            xb = _label_of(_edge(jb, e0, W, p) - ut0, gt, prm)
     return total
+
+
+@njit(cache=True, inline="always")
+def _x_max(prm):
+    """Largest label of a ray of the flat face: the pencil's tangents to its rim,
+    ``R / sqrt(1 - kap^2 R^2)`` (``R`` for parallel chords)."""
+    R = prm[_R]
+    return R / math.sqrt(1.0 - prm[_KAP] * prm[_KAP] * R * R)
 
 
 #: Placeholders for the cell arguments of :func:`_lost_pieces` on a flat face.
@@ -443,10 +499,10 @@ _NO_VALS = np.zeros((0, 3, 1))
 @njit(cache=True)
 def _flat_lost(prm, norm_only, e0, W, cum, p):
     """``∫∫ w (1 - T)`` over a flat face (or ``∫∫ w`` with ``norm_only``)."""
-    R = prm[_R]
+    xr = _x_max(prm)
     if norm_only:
-        return _outer_quad(-R, R, -R, R, 1, prm, e0, W, cum, p)
-    return _lost_pieces(-R, R, -1, _NO_CELLS, _NO_VALS, prm, e0, W, cum, p)
+        return _outer_quad(-xr, xr, -xr, xr, 1, prm, e0, W, cum, p)
+    return _lost_pieces(-xr, xr, -1, _NO_CELLS, _NO_VALS, prm, e0, W, cum, p)
 
 
 # A thick detector's chord integrals are interpolated on cells: Chebyshev points (second
@@ -816,12 +872,25 @@ def _grid(det, radius, depth, mu_det, src, finite, mu, h, Q, cm, uniform, a, b, 
             prm[_R] = radius
             prm[_DH] = depth
             prm[_MUD] = mu_det[n]
+            prm[_BETA] = 0.0
+            prm[_KAP] = 0.0
             if finite[n]:
                 prm[_FIN] = 1.0
                 prm[_D0] = Sz - Pz
                 prm[_AX] = Q[2, 0]
                 prm[_AY] = Q[2, 1]
                 prm[_TAU] = 0.0
+                # The exact (projective) map of a tilted mask: the rays whose crossings
+                # meet a line of the slab along the slats lie in a plane through the
+                # source and the slats' direction v, so their labels form a pencil of
+                # lines through the vertex V = S - (S_z / v_z) v of the detector plane,
+                # (0, 1 / kap) in the label frame; along the label x (the pencil line
+                # through (x, 0)) the crossings are u(0) + g x / (1 - beta x), beta =
+                # dP_z/dx / (S'_z - P_z).  No tilt: v_z = 0, kap = beta = 0.
+                prm[_BETA] = (Q[2, 0] * hx + Q[2, 1] * hy) / (Sz - Pz)
+                vy = -v0 * hy + v1 * hx
+                sy = -(src[n, 0] - det[d, 0]) * hy + (src[n, 1] - det[d, 1]) * hx
+                prm[_KAP] = v2 / (v2 * sy - src[n, 2] * vy)
                 # Source foot relative to the centre in the label frame; the bottom face's
                 # shadow: centre sigma H / (z_s + H), radius R z_s / (z_s + H).
                 fx = src[n, 0] - det[d, 0]

@@ -84,3 +84,21 @@ def test_thick_detector_matches_volume_brute_force(energy, theta, xi):
     P = get_model("exact").profile(inst, [theta], [30.0], [xi], energy=energy)[0, 0, 0]
     ref = thick_profile(inst, theta, 30.0, xi, energy=energy, n=16 if energy > 500 else 24)
     assert abs(P - ref) < 1e-9, P - ref
+
+
+@pytest.mark.parametrize(("tilt", "energy", "theta", "phi", "xi"), [
+    (0.0, 122.0, 15.0, -60.0, 100.0), (1.0, 122.0, 15.0, -60.0, 100.0),
+    (1.0, 662.0, 8.0, 200.0, 40.0), (-1.5, 662.0, 25.0, 60.0, 300.0)])
+def test_thick_detector_near_source_tilted_mask_matches_brute_force(tilt, energy, theta, phi,
+                                                                     xi):
+    # The lab prototype's 2.5 cm NaI detectors 2 m from the source, under a mask tilted by
+    # up to 1.5 deg: the chords of the shadow follow the pencil of label lines too, and the
+    # slab path's variation along them enters by five moments (Taylor remainder
+    # E^5 e^-E delta^5 / 120 < 2e-11).  Agreement to 1e-9 (observed <= 1.5e-11; the
+    # reference's 20- and 32-point rules differ by up to 4.6e-9 here, so it takes 32).
+    m = Mask(3.8, 3.8, 2.0, 114.55, "Pb", tilt_x=tilt, tilt_y=-0.5 * tilt, axis_offset_x=0.2)
+    inst = Instrument(m, DetectorArray([[4.0, -2.5]], 3.8, 2.5, _NAI))
+    P = get_model("exact").profile(inst, [theta], [phi], [xi], energy=energy,
+                                   distance=200.0)[0, 0, 0]
+    ref = thick_profile(inst, theta, phi, xi, energy=energy, distance=200.0, n=32)
+    assert abs(P - ref) < 1e-9, P - ref

@@ -130,6 +130,8 @@ _N_PRM = 30
 # Hull of a thick detector's shadow (``hull``): the two external tangents' contact points on
 # the top face's circle (a) and the bottom face's shadow (b), when they exist.
 _N_HULL = 9
+#: Moments ``∫ w ε δ^k dy``, ``k < _N_MOM``, of a thick detector's chords (a nearby source).
+_N_MOM = 5
 #: 3-point Gauss–Legendre rule of the chords of a flat face (a source at a finite distance).
 _G3_X = (-math.sqrt(0.6), 0.0, math.sqrt(0.6))
 _G3_W = (5.0 / 9.0, 8.0 / 9.0, 5.0 / 9.0)
@@ -220,13 +222,81 @@ def _depth_path(x, y, prm):
     return max(hi - lo, 0.0) * math.sqrt(1.0 + aa)
 
 
+@njit(cache=True, inline="always")
+def _circle_cut(x, kap, cx, cy, r):
+    """``(y1, y2)``, where the label line ``x`` (the points ``(x (1 - kap y), y)``) meets
+    the circle of centre ``(cx, cy)`` and radius ``r``; ``y2 < y1`` if it misses it."""
+    if kap == 0.0:
+        dx = x - cx
+        if abs(dx) > r:
+            return 1.0, -1.0
+        h = math.sqrt(r * r - dx * dx)
+        return cy - h, cy + h
+    ex = -x * kap
+    px = x - cx
+    aa = 1.0 + ex * ex
+    bb = ex * px - cy
+    cc = px * px + cy * cy - r * r
+    disc = bb * bb - aa * cc
+    if disc < 0.0:
+        return 1.0, -1.0
+    sq = math.sqrt(disc)
+    return (-bb - sq) / aa, (-bb + sq) / aa
+
+
+@njit(cache=True, inline="always")
+def _line_cut(x, kap, ax, ay, bx, by):
+    """``(y, t)``: where the label line ``x`` meets the line ``a + t (b - a)``."""
+    ex = bx - ax
+    ey = by - ay
+    den = ex + x * kap * ey
+    if den == 0.0:
+        return math.nan, math.nan
+    t = (x * (1.0 - kap * ay) - ax) / den
+    return ay + t * ey, t
+
+
+@njit(cache=True, inline="always")
+def _tangent_labels(kap, cx, cy, r):
+    """Labels of the two lines of the pencil tangent to the circle ``(cx, cy, r)``: the
+    roots of ``(cx + x (kap cy - 1))^2 = r^2 (1 + kap^2 x^2)`` (``cx -+ r`` for ``kap =
+    0``)."""
+    if kap == 0.0:
+        return cx - r, cx + r
+    g = kap * cy - 1.0
+    aa = g * g - r * r * kap * kap
+    bb = cx * g
+    cc = cx * cx - r * r
+    sq = math.sqrt(max(bb * bb - aa * cc, 0.0))
+    q = -(bb + math.copysign(sq, bb))
+    x1 = q / aa
+    x2 = cc / q if q != 0.0 else x1
+    return min(x1, x2), max(x1, x2)
+
+
 @njit(cache=True)
 def _hull_chord(x, prm, hull):
     """``(y_lo, y_hi)`` of the thick detector's shadow (the convex hull of the top face's
-    circle and the bottom face's shadow) at ``x``; ``y_hi < y_lo`` outside it."""
+    circle and the bottom face's shadow) along the label line ``x``; ``y_hi < y_lo``
+    outside it."""
     R = prm[_R]
     lo = math.inf
     hi = -math.inf
+    kap = prm[_KAP]
+    if kap != 0.0:
+        for cx, cy, r in ((0.0, 0.0, R), (prm[_DLX], prm[_DLY], prm[_RH])):
+            y1, y2 = _circle_cut(x, kap, cx, cy, r)
+            if y2 >= y1:
+                lo = min(lo, y1)
+                hi = max(hi, y2)
+        if hull[0] > 0.0:
+            for k in range(2):
+                yy, t = _line_cut(x, kap, hull[1 + 4 * k], hull[2 + 4 * k], hull[3 + 4 * k],
+                                  hull[4 + 4 * k])
+                if 0.0 <= t <= 1.0:
+                    lo = min(lo, yy)
+                    hi = max(hi, yy)
+        return lo, hi
     if abs(x) <= R:
         h = math.sqrt(R * R - x * x)
         lo = -h
@@ -264,25 +334,20 @@ def _inner(x, prm, hull):
     """
     lo, hi = _hull_chord(x, prm, hull)
     if hi <= lo:
-        return 0.0, 0.0, 0.0
+        return 0.0, 0.0, 0.0, 0.0, 0.0
     cuts = np.empty(6)
     nc = 0
     cuts[nc] = lo
     nc += 1
     R = prm[_R]
-    if abs(x) < R:
-        h = math.sqrt(R * R - x * x)
-        for yy in (-h, h):
-            if lo < yy < hi:
-                cuts[nc] = yy
-                nc += 1
-    dx = x - prm[_DLX]
-    if abs(dx) < prm[_RH]:
-        h = math.sqrt(prm[_RH] ** 2 - dx * dx)
-        for yy in (prm[_DLY] - h, prm[_DLY] + h):
-            if lo < yy < hi:
-                cuts[nc] = yy
-                nc += 1
+    kap = prm[_KAP]
+    for cx, cy, r in ((0.0, 0.0, R), (prm[_DLX], prm[_DLY], prm[_RH])):
+        y1, y2 = _circle_cut(x, kap, cx, cy, r)
+        if y2 > y1:
+            for yy in (y1, y2):
+                if lo < yy < hi:
+                    cuts[nc] = yy
+                    nc += 1
     cuts[nc] = hi
     nc += 1
     cuts[:nc].sort()
@@ -293,23 +358,29 @@ def _inner(x, prm, hull):
     strip = False
     r1 = lo
     r2 = hi
-    if hull[0] > 0.0 and hull[1] != hull[3] and hull[5] != hull[7]:
-        ya = hull[2] + (x - hull[1]) * (hull[4] - hull[2]) / (hull[3] - hull[1])
-        yb = hull[6] + (x - hull[5]) * (hull[8] - hull[6]) / (hull[7] - hull[5])
-        r1 = min(min(ya, yb), lo)
-        r2 = max(max(ya, yb), hi)
-        strip = r2 > r1
+    if hull[0] > 0.0:
+        ya = _line_cut(x, kap, hull[1], hull[2], hull[3], hull[4])[0]
+        yb = _line_cut(x, kap, hull[5], hull[6], hull[7], hull[8])[0]
+        if not (math.isnan(ya) or math.isnan(yb)):
+            r1 = min(min(ya, yb), lo)
+            r2 = max(max(ya, yb), hi)
+            strip = r2 > r1
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
+    f3 = 0.0
+    f4 = 0.0
     for i in range(nc - 1):
         y1 = cuts[i]
         y2 = cuts[i + 1]
         if y2 <= y1:
             continue
-        l1 = _depth_path(x, y1 + 1e-9 * (y2 - y1), prm)
-        lm = _depth_path(x, 0.5 * (y1 + y2), prm)
-        l2 = _depth_path(x, y2 - 1e-9 * (y2 - y1), prm)
+        ya = y1 + 1e-9 * (y2 - y1)
+        yb = y2 - 1e-9 * (y2 - y1)
+        ym = 0.5 * (y1 + y2)
+        l1 = _depth_path(x * (1.0 - kap * ya), ya, prm)
+        lm = _depth_path(x * (1.0 - kap * ym), ym, prm)
+        l2 = _depth_path(x * (1.0 - kap * yb), yb, prm)
         if not finite and l1 == lm == l2:
             # Every ray of the piece crosses the full depth: a constant counting probability.
             if lm > 0.0:
@@ -335,26 +406,35 @@ def _inner(x, prm, hull):
             a0 = 0.0
             a1 = 0.0
             a2 = 0.0
+            a3 = 0.0
+            a4 = 0.0
             for k in range(len(_G12I_X)):
                 b = m + hw * _G12I_X[k]
                 yy = sm + sh * math.sin(b)
-                ell = _depth_path(x, yy, prm)
+                jac = 1.0 - kap * yy
+                xx = x * jac
+                ell = _depth_path(xx, yy, prm)
                 if ell <= 0.0:
                     continue
                 v = _G12I_W[k] * math.cos(b) * (
                     1.0 if math.isinf(mud) else -math.expm1(-mud * ell))
                 if finite:
-                    w = _ray(x, yy, 0.0, prm)[0]
-                    dl = _slab_path(x, yy, prm) / ell0 - 1.0
+                    w = _ray(xx, yy, 0.0, prm)[0] * jac
+                    dl = _slab_path(xx, yy, prm) / ell0 - 1.0
                     v *= w
+                    d2 = dl * dl
                     a1 += v * dl
-                    a2 += v * dl * dl
+                    a2 += v * d2
+                    a3 += v * d2 * dl
+                    a4 += v * d2 * d2
                 a0 += v
             c = hw * sh
             f0 += a0 * c
             f1 += a1 * c
             f2 += a2 * c
-    return f0, f1, f2
+            f3 += a3 * c
+            f4 += a4 * c
+    return f0, f1, f2, f3, f4
 
 
 @njit(cache=True, inline="always")
@@ -493,7 +573,7 @@ def _x_max(prm):
 
 #: Placeholders for the cell arguments of :func:`_lost_pieces` on a flat face.
 _NO_CELLS = np.zeros((0, 7))
-_NO_VALS = np.zeros((0, 3, 1))
+_NO_VALS = np.zeros((0, _N_MOM, 1))
 
 
 @njit(cache=True)
@@ -560,8 +640,12 @@ def _cell_value(x, t, c, cells, vals, with_mask, prm, e0, W, cum, p):
         return -math.expm1(-prm[_TAU] * f) * F0
     E = mu * _slab_path(x, 0.0, prm) * f
     eE = math.exp(-E)
-    return (-math.expm1(-E) * F0 + E * eE * _bary(t, t1, t2, vals, c, 1)
-            - 0.5 * E * E * eE * _bary(t, t1, t2, vals, c, 2))
+    acc = -math.expm1(-E) * F0
+    term = 1.0
+    for k in range(1, _N_MOM):
+        term *= -E / k
+        acc -= eE * term * _bary(t, t1, t2, vals, c, k)
+    return acc
 
 
 @njit(cache=True)
@@ -615,23 +699,28 @@ def _thick_cells(prm, hull):
     dlx = prm[_DLX]
     dly = prm[_DLY]
     rh = prm[_RH]
-    sing = np.array((-R, R, dlx - rh, dlx + rh))
+    kap = prm[_KAP]
+    t1, t2 = _tangent_labels(kap, 0.0, 0.0, R)
+    t3, t4 = _tangent_labels(kap, dlx, dly, rh)
+    sing = np.array((t1, t2, t3, t4))
     sing.sort()
     pts = np.empty(10)
     pts[:4] = sing
     npt = 4
+    # Kinks: the labels x / (1 - kap y) of the tangents' contact points and of the
+    # circles' intersections.
     if hull[0] > 0.0:
         for k in range(2):
-            pts[npt] = hull[1 + 4 * k]
-            pts[npt + 1] = hull[3 + 4 * k]
+            pts[npt] = hull[1 + 4 * k] / (1.0 - kap * hull[2 + 4 * k])
+            pts[npt + 1] = hull[3 + 4 * k] / (1.0 - kap * hull[4 + 4 * k])
             npt += 2
     ll = math.hypot(dlx, dly)
     if ll > 0.0:
         s0 = (R * R - rh * rh + ll * ll) / (2.0 * ll)
         if R * R > s0 * s0:
             h0 = math.sqrt(R * R - s0 * s0)
-            pts[npt] = (s0 * dlx + h0 * dly) / ll
-            pts[npt + 1] = (s0 * dlx - h0 * dly) / ll
+            pts[npt] = (s0 * dlx + h0 * dly) / ll / (1.0 - kap * (s0 * dly - h0 * dlx) / ll)
+            pts[npt + 1] = (s0 * dlx - h0 * dly) / ll / (1.0 - kap * (s0 * dly + h0 * dlx) / ll)
             npt += 2
     pts[:npt].sort()
     # Cells, in increasing x: (t1, t2, lower, s_lo, s_hi, x1, x2).
@@ -703,7 +792,7 @@ def _thick_cells(prm, hull):
                     cells[nc, 5] = _cell_x(t1 if lower else t2, lower, s_lo, half, s_hi)
                     cells[nc, 6] = _cell_x(t2 if lower else t1, lower, s_lo, half, s_hi)
                     nc += 1
-    vals = np.empty((nc, 3, _M_CHEB))
+    vals = np.empty((nc, _N_MOM, _M_CHEB))
     for c in range(nc):
         lower = cells[c, 2] > 0.0
         half = 0.5 * (cells[c, 4] - cells[c, 3])
@@ -711,7 +800,8 @@ def _thick_cells(prm, hull):
         hw = 0.5 * (cells[c, 1] - cells[c, 0])
         for j in range(_M_CHEB):
             x = _cell_x(tm + hw * _CHEB[j], lower, cells[c, 3], half, cells[c, 4])
-            vals[c, 0, j], vals[c, 1, j], vals[c, 2, j] = _inner(x, prm, hull)
+            (vals[c, 0, j], vals[c, 1, j], vals[c, 2, j], vals[c, 3, j],
+             vals[c, 4, j]) = _inner(x, prm, hull)
     total = 0.0
     for c in range(nc):
         total += _cell_quad(cells[c, 5], cells[c, 6], c, cells, vals, False, prm, 0.0,

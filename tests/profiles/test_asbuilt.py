@@ -259,9 +259,9 @@ def _brute_force_at(inst, theta, phi, xi, D):
 
 def test_finite_distance_matches_brute_force():
     # Sources 2 m and 4 m away (the pattern magnified 2x and 1.3x on the detector).  The
-    # model averages each chord by 2-point Gauss–Legendre (error ~ (R / D)^4 ~ 1e-8
-    # relative at 1.5 m) and integrates the pieces to ~1e-12: agreement to 1e-9 (observed
-    # ~5e-12).
+    # model averages each chord by 3-point Gauss–Legendre (error ~ (R / D)^6) and
+    # integrates the pieces to ~1e-12: agreement to 1e-9 (observed 7e-16; 5e-12 with the
+    # former 2-point rule).  Tilted masks and 1 m: tests/profiles/test_exact_references.py.
     inst = Instrument(Mask(4.0, 4.0, 6.0, 100.0, _MAT), DetectorArray.single(4.0, 3.1, -1.2))
     for theta, phi, xi, D in [(3.0, 127.0, 20.0, 200.0), (8.0, -20.0, 70.0, 400.0)]:
         got = get_model("exact").profile(inst, [theta], [phi], [xi], distance=D)[0, 0, 0]
@@ -348,11 +348,12 @@ def test_thick_detector_matches_brute_force():
     # Adaptive quadrature over the shadow (inner integral along the slats, cut at both
     # circles and the tangent lines), each ray's counting probability from its chord in the
     # cylinder: the independent reference.  The model interpolates its chord integrals at
-    # 16 Chebyshev points per cell (12-point rule along each chord): agreement to 1e-8
-    # (observed 1.1e-9 at 122 keV, where mu_det = 3.7 /cm; 2e-10 at 662 keV).
+    # 16 Chebyshev points per cell (12-point rule along each chord, in a variable regular at
+    # the grazing lines): agreement to 1e-9 (observed 1.1e-12 at 122 keV, where mu_det =
+    # 3.7 /cm; 1.1e-9 before the chords' variable took the grazing lines).
     inst = _thick(Mask(4.0, 4.0, 6.0, 100.0, _MAT), pos=[[3.1, -1.2]])
     got = get_model("exact").profile(inst, [25.0], [-20.0], [70.0], energy=122.0)[0, 0, 0]
-    assert got == pytest.approx(_brute_force_thick(inst, 25.0, -20.0, 70.0, 122.0), abs=1e-8)
+    assert got == pytest.approx(_brute_force_thick(inst, 25.0, -20.0, 70.0, 122.0), abs=1e-9)
 
 
 def _brute_force_thick(inst, theta, phi, xi, energy):

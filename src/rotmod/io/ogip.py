@@ -30,7 +30,7 @@ from astropy.io import fits
 from rotmod.errors import ParameterError
 from rotmod.io._fits import open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite
-from rotmod.io.images import stamp_header
+from rotmod.io.images import add_meta_cards, stamp_header
 from rotmod.spectral.spectrum import CountsSpectrum, SpectralResponse
 
 __all__ = ["ogip_paths", "read_ogip", "write_ogip"]
@@ -98,9 +98,7 @@ def _spectrum_hdu(spec: CountsSpectrum, clas2: str, files: dict[str, str]) -> fi
     for key in ("RESPFILE", "ANCRFILE", "BACKFILE", "CORRFILE"):
         h[key] = files.get(key, "none")
     h["OBS_ID"] = str(spec.meta.get("OBS_ID", spec.meta.get("OBJECT", "rotmod")))
-    for k, v in spec.meta.items():
-        if k != "OBS_ID":
-            h[k.upper()[:8]] = v
+    add_meta_cards(h, {k: v for k, v in spec.meta.items() if k != "OBS_ID"})
     return hdu
 
 
@@ -229,7 +227,9 @@ def read_ogip(path: str | os.PathLike) -> CountsSpectrum:
         with open_verified(p.parent / names["RESPFILE"]) as rmf:
             m = rmf["MATRIX"].data
             eb = rmf["EBOUNDS"].data
-            first = int(rmf["MATRIX"].header.get("TLMIN4", 1))
+            # The first channel number: TLMIN of the F_CHAN column (OGIP's default 1).
+            col = m.columns.names.index("F_CHAN") + 1
+            first = int(rmf["MATRIX"].header.get(f"TLMIN{col}", 1))
             n_c = int(rmf["MATRIX"].header["DETCHANS"])
             matrix = np.zeros((len(m), n_c))
             for i, row in enumerate(m):

@@ -248,12 +248,7 @@ def fit_spectra(
                              f"{(n_det, n_t, n_c)}, got {y.shape}")
     if not np.all(np.isfinite(y)) or np.any(y < 0) or np.any(y != np.round(y)):
         raise ParameterError("counts must be non-negative integers")
-    expo = np.broadcast_to(np.asarray(exposure, dtype=float), (n_det, n_t)) if np.ndim(
-        exposure) in (1, 2) else None
-    if expo is None or expo.shape != (n_det, n_t) or not np.all(np.isfinite(expo)) or np.any(
-            expo < 0):
-        raise ParameterError(f"exposure must be finite seconds >= 0 of shape ({n_t},) or "
-                             f"({n_det}, {n_t})")
+    expo = _exposure(exposure, n_det, n_t)
     if len(models) != columns.columns.shape[0]:
         raise ParameterError(f"models must give one spectrum per source "
                              f"({columns.columns.shape[0]}), got {len(models)}")
@@ -306,11 +301,24 @@ def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[Sp
     """Expected counts ``(n_det, n_time, n_c)`` of the sources' spectra plus a background
     rate per detector and channel (counts/s, broadcast to ``(n_det, n_c)``)."""
     n_det, n_t, n_c = columns.shape
-    expo = np.broadcast_to(np.asarray(exposure, dtype=float), (n_det, n_t))
+    expo = _exposure(exposure, n_det, n_t)
     rate = sum(columns.rates(k, m) for k, m in enumerate(models)) + np.broadcast_to(
         np.asarray(background, dtype=float), (n_det, n_c))[:, None, :]
     return rate * expo[:, :, None]
 
+
+
+def _exposure(exposure: Any, n_det: int, n_t: int) -> np.ndarray:
+    """``exposure`` as ``(n_det, n_t)`` seconds, or a ParameterError naming the rule."""
+    try:
+        e = np.asarray(exposure, dtype=float)
+        expo = np.broadcast_to(e, (n_det, n_t)) if e.ndim in (1, 2) else None
+    except (TypeError, ValueError):
+        expo = None
+    if expo is None or not np.all(np.isfinite(expo)) or np.any(expo < 0):
+        raise ParameterError(f"exposure must be finite seconds >= 0 of shape ({n_t},) or "
+                             f"({n_det}, {n_t})")
+    return expo
 
 
 def fold_channels(events: EventList, time_bins: Any, channel_edges: Any

@@ -42,7 +42,7 @@ def _instrument(mask_material: Material | None = None) -> Instrument:
 @pytest.fixture(scope="module")
 def detector_response():
     inst = _instrument()
-    return tabulate_response(inst.detectors, NODES, [0.0, 10.0], CHANNELS,
+    return tabulate_response(inst.detectors, NODES, [0.0, 10.0, 40.0], CHANNELS,
                              resolution=EnergyResolution.nai(), n_photons=2000, seed=1)
 
 
@@ -55,23 +55,20 @@ def columns(detector_response):
 def test_transparent_mask_gives_the_detector_monte_carlo(detector_response) -> None:
     """With slats that absorb nothing, a source's counts per photon cm^-2 are the face's
     projected area times the detector Monte Carlo's counts per photon (interaction x
-    redistribution) in every bin: this checks the unit conversion (sky unit -> photons
-    cm^-2) and that the exact model's thick-detector profile and the detector Monte Carlo
-    count the same interactions.  Tolerance: the Monte Carlo's interaction probability has a
-    statistical error below 1 % at 2000 photons (forced first interaction), and the
-    exact model's is exact, so 3 %."""
+    redistribution) in every bin.  At 40 deg off axis (cos = 0.77, side entry 0.44 of the
+    top face) a wrong area factor or a profile that counted other interactions than the
+    Monte Carlo would be off by 20 % or more.  Tolerance: the Monte Carlo's interaction
+    probability has a statistical error below 1 % at 2000 photons (forced first interaction)
+    and the exact model's is exact, so 3 %."""
     glass = Material("Pb", mass_attenuation=0.0)
     resp = build_response(_instrument(glass), SkyGrid.square(4, 1.0), 12, energy=300.0)
-    cols = spectral_columns(resp, (5.0, 30.0), detector_response)
-    # A monoenergetic line at one node: photons cm^-2 s^-1 of 1 in that node's bin.
-    k = 20
-    e = cols.energy_edges
-    per_bin = cols.columns[0, k] [..., None] * cols.redistribution[0, k]   # (det, t, c)
-    want = (np.pi * 2.5**2 * np.cos(np.radians(5.0))
-            * detector_response.counts_per_photon(5.0)[0, k])
+    cols = spectral_columns(resp, (40.0, 30.0), detector_response)
+    k = 20  # a monoenergetic line at one node: 1 photon cm^-2 s^-1 in that node's bin
+    per_bin = cols.columns[0, k][..., None] * cols.redistribution[0, k]   # (det, t, c)
+    want = (np.pi * 2.5**2 * np.cos(np.radians(40.0))
+            * detector_response.counts_per_photon(40.0)[0, k])
     np.testing.assert_allclose(per_bin, np.broadcast_to(want, per_bin.shape), rtol=0.03,
                                atol=1e-6 * want.max())
-    assert e[k] < NODES[k] < e[k + 1]
 
 
 def test_atmosphere_scales_each_energy(detector_response) -> None:
@@ -89,10 +86,13 @@ def test_atmosphere_scales_each_energy(detector_response) -> None:
 
 
 def test_node_edges_bracket_the_nodes() -> None:
+    """Bins run between the nodes' geometric midpoints, the outer ones as wide (in log) as
+    their neighbours' half-spacing on each side."""
     edges = node_edges(NODES)
     assert np.all(edges[:-1] < NODES) and np.all(NODES < edges[1:])
-    np.testing.assert_allclose(np.sqrt(edges[1:-1] * edges[1:-1]), edges[1:-1])
     np.testing.assert_allclose(np.log(edges[1:-1]), 0.5 * np.log(NODES[1:] * NODES[:-1]))
+    np.testing.assert_allclose(np.log(NODES[0] / edges[0]), np.log(edges[1] / NODES[0]))
+    np.testing.assert_allclose(np.log(edges[-1] / NODES[-1]), np.log(NODES[-1] / edges[-2]))
 
 
 def test_fits_recover_injected_spectra(columns) -> None:
@@ -176,3 +176,18 @@ def test_bad_input(columns, detector_response) -> None:
                          (1.0, 0.0), detector_response)
     with pytest.raises(ParameterError, match="channel_edges"):
         fold_channels(None, 6, [100.0, 50.0])
+    with pytest.raises(ParameterError, match="one spectrum per source"):
+        expected_counts(columns, 1.0, [])
+    with pytest.raises(ParameterError, match="off_exposure must be"):
+        fit_spectra(columns, np.zeros(columns.shape), np.ones(24), [PowerLaw()],
+                    off_counts=np.zeros(columns.shape[::2], dtype=int), off_exposure=[1, 2])
+    czt = DetectorArray(DetectorArray.hexagonal(5.0, rings=1).positions, 5.0, thickness=5.0,
+                        material=Material("CdZnTe", density=5.8))
+    inst = Instrument(Mask(3.0, 3.0, 3.0, 100.0), czt, rotation_period=60.0)
+    with pytest.raises(ParameterError, match="tabulated for 5 cm x 5 cm NaI"):
+        spectral_columns(build_response(inst, SkyGrid.square(2, 1.0), 6, energy=300.0),
+                         (1.0, 0.0), detector_response)
+    fixed = _instrument(Material("Pb", mass_attenuation=0.1))
+    with pytest.raises(ParameterError, match="fixed attenuation coefficient"):
+        spectral_columns(build_response(fixed, SkyGrid.square(2, 1.0), 6, energy=300.0),
+                         (1.0, 0.0), detector_response)

@@ -99,21 +99,28 @@ def test_band_fit_recovers_a_burst() -> None:
 
 
 def test_a_parameter_the_data_do_not_bound_is_pegged() -> None:
-    """A Band burst whose counts above the peak are too few to tell beta from a cutoff: the fit
-    stops beta at astromodels' limit of -5 and says so (pegged, no error), while the other
-    parameters keep their curvature errors (seed 7, draw 29 of the calibration: an
-    independent property of these data, not of the code)."""
+    """Band bursts whose counts above the peak are too few to tell beta from a cutoff: among
+    Poisson draws at ~1e4 counts some fits stop beta at astromodels' limit of -5 (1.5 % in the
+    calibration); such a fit says so (pegged, no error) while the other parameters keep
+    finite curvature errors.  The draws are searched, so the test does not hang on one
+    generator's stream."""
     r = gaussian_response()
     truth = Band(5e-3, -0.9, 300.0, -2.5)
     rng = np.random.default_rng(7)
-    for _ in range(29):
-        rng.poisson(r.fold(truth, 20.0))
-    spec = CountsSpectrum(rng.poisson(r.fold(truth, 20.0)), 20.0, r)
-    fit = fit_spectrum(spec, Band(3e-3, -1.2, 400.0, -2.2))
+    for _ in range(200):
+        spec = CountsSpectrum(rng.poisson(r.fold(truth, 20.0)), 20.0, r)
+        # A quick screen: a Band fit pegs where a cutoff power law describes the data as
+        # well; only those draws get the full fit.
+        fit = fit_spectrum(spec, Band(3e-3, -1.2, 400.0, -2.2))
+        if fit.pegged:
+            break
+    else:
+        pytest.fail("no pegged fit in 200 draws (the calibration pegs 1.5 %)")
     assert fit.pegged == ("beta",)
-    assert fit.model.beta == pytest.approx(-5.0)
+    assert fit.model.beta == pytest.approx(-5.0, abs=1e-3)
     assert np.isnan(fit.errors["beta"])
     assert all(np.isfinite(fit.errors[p]) for p in ("K", "alpha", "xp"))
+    assert fit.converged
 
 
 def test_bad_input() -> None:
@@ -132,3 +139,9 @@ def test_bad_input() -> None:
         fit_spectrum(CountsSpectrum(np.ones(48), 10.0), PowerLaw())
     with pytest.raises(ParameterError, match="free must name parameters"):
         fit_spectrum(CountsSpectrum(np.ones(48), 10.0, r), PowerLaw(), free=["gamma"])
+    with pytest.raises(ParameterError, match="selects no channel"):
+        fit_spectrum(CountsSpectrum(np.ones(48), 10.0, r), PowerLaw(), channels=slice(0, 0))
+    with pytest.raises(ParameterError, match="channels must select"):
+        fit_spectrum(CountsSpectrum(np.ones(48), 10.0, r), PowerLaw(), channels=[99])
+    with pytest.raises(ParameterError, match="alpha"):
+        wstat(np.ones(3), np.ones(3), 0.0, np.ones(3))

@@ -196,15 +196,37 @@ def write_ogip(
 
 
 def _spectrum_from(hdul: fits.HDUList, path: Path) -> tuple[np.ndarray, float, float, Any]:
+    """Counts, exposure, backscal and header of a type I COUNTS spectrum; what rotmod cannot
+    honour (per-channel scaling, bad-quality channels, grouping) is refused by name rather
+    than dropped."""
     if "SPECTRUM" not in hdul:
         raise ParameterError(f"file {str(path)!r} has no SPECTRUM extension (not an OGIP PHA)")
     h = hdul["SPECTRUM"].header
     d = hdul["SPECTRUM"].data
-    if "COUNTS" not in d.columns.names:
+    names = d.columns.names
+    if "COUNTS" not in names:
         raise ParameterError(f"file {str(path)!r}: only COUNTS spectra are read (no RATE)")
-    backscal = (float(d["BACKSCAL"][0]) if "BACKSCAL" in d.columns.names
-                else float(h.get("BACKSCAL", 1.0)))
-    return np.asarray(d["COUNTS"]), float(h["EXPOSURE"]), backscal, h
+    if "EXPOSURE" not in h:
+        raise ParameterError(f"file {str(path)!r}: the SPECTRUM header has no EXPOSURE")
+    scal = {}
+    for key in ("BACKSCAL", "AREASCAL"):
+        v = np.asarray(d[key], dtype=float) if key in names else np.array([h.get(key, 1.0)])
+        if not np.all(v == v[0]):
+            raise ParameterError(f"file {str(path)!r}: {key} differs between channels, which "
+                                 "rotmod does not model")
+        scal[key] = float(v[0])
+    if scal["AREASCAL"] != 1.0:
+        raise ParameterError(f"file {str(path)!r}: AREASCAL = {scal['AREASCAL']:g}; rotmod "
+                             "reads unscaled spectra only")
+    for key in ("QUALITY", "GROUPING"):
+        v = np.asarray(d[key]) if key in names else np.array([h.get(key, 0)])
+        if key == "QUALITY" and np.any(v != 0):
+            raise ParameterError(f"file {str(path)!r}: channels flagged bad (QUALITY != 0); "
+                                 "select the good channels in the fit instead")
+        if key == "GROUPING" and np.any((v != 0) & (v != 1)):
+            raise ParameterError(f"file {str(path)!r}: grouped channels (GROUPING); rotmod "
+                                 "fits channels one by one")
+    return np.asarray(d["COUNTS"]), float(h["EXPOSURE"]), scal["BACKSCAL"], h
 
 
 def read_ogip(path: str | os.PathLike) -> CountsSpectrum:
@@ -224,26 +246,43 @@ def read_ogip(path: str | os.PathLike) -> CountsSpectrum:
         meta = {k: h[k] for k in ("TELESCOP", "INSTRUME", "OBS_ID", "OBJECT") if k in h}
     resp = None
     if names["RESPFILE"].lower() != "none" and names["ANCRFILE"].lower() != "none":
-        with open_verified(p.parent / names["RESPFILE"]) as rmf:
-            m = rmf["MATRIX"].data
+        rmf_path = p.parent / names["RESPFILE"]
+        with open_verified(rmf_path) as rmf:
+            # MATRIX (a redistribution) or SPECRESP MATRIX (the OGIP name of a full one).
+            ext = next((e for e in ("MATRIX", "SPECRESP MATRIX") if e in rmf), None)
+            if ext is None or "EBOUNDS" not in rmf:
+                raise ParameterError(f"file {str(rmf_path)!r} has no MATRIX (or SPECRESP "
+                                     "MATRIX) and EBOUNDS extensions (not an OGIP RMF)")
+            m = rmf[ext].data
             eb = rmf["EBOUNDS"].data
             # The first channel number: TLMIN of the F_CHAN column (OGIP's default 1).
             col = m.columns.names.index("F_CHAN") + 1
-            first = int(rmf["MATRIX"].header.get(f"TLMIN{col}", 1))
-            n_c = int(rmf["MATRIX"].header["DETCHANS"])
+            first = int(rmf[ext].header.get(f"TLMIN{col}", 1))
+            n_c = int(rmf[ext].header["DETCHANS"])
             matrix = np.zeros((len(m), n_c))
             for i, row in enumerate(m):
                 start = 0
                 f = np.atleast_1d(row["F_CHAN"])
                 nch = np.atleast_1d(row["N_CHAN"])
                 for k in range(int(row["N_GRP"])):
-                    a = int(f[k]) - first
-                    matrix[i, a:a + int(nch[k])] = row["MATRIX"][start:start + int(nch[k])]
-                    start += int(nch[k])
+                    a, n = int(f[k]) - first, int(nch[k])
+                    if a < 0 or a + n > n_c:
+                        raise ParameterError(
+                            f"file {str(rmf_path)!r}: row {i} puts channels {a + first}.."
+                            f"{a + first + n - 1} outside the {n_c} channels from {first}")
+                    matrix[i, a:a + n] = row["MATRIX"][start:start + n]
+                    start += n
             energy_edges = np.append(m["ENERG_LO"], m["ENERG_HI"][-1]).astype(float)
             channel_edges = np.append(eb["E_MIN"], eb["E_MAX"][-1]).astype(float)
-        with open_verified(p.parent / names["ANCRFILE"]) as arf:
-            area = np.asarray(arf["SPECRESP"].data["SPECRESP"], dtype=float)
+        arf_path = p.parent / names["ANCRFILE"]
+        with open_verified(arf_path) as arf:
+            a_data = arf["SPECRESP"].data
+            area = np.asarray(a_data["SPECRESP"], dtype=float)
+            a_edges = np.append(a_data["ENERG_LO"], a_data["ENERG_HI"][-1]).astype(float)
+        if a_edges.shape != energy_edges.shape or not np.allclose(a_edges, energy_edges,
+                                                                   rtol=1e-6):
+            raise ParameterError(f"files {names['ANCRFILE']!r} and {names['RESPFILE']!r} "
+                                 "have different true-energy grids")
         resp = SpectralResponse(energy_edges, channel_edges, matrix, area)
     background = None
     if names["BACKFILE"].lower() != "none":

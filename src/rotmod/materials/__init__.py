@@ -197,9 +197,17 @@ def _checked(energy: Any) -> np.ndarray:
     return e
 
 
-def _mass_fractions(formula: str | Mapping[str, float]) -> dict[str, float]:
-    """Mass fractions of a formula or name, or of a mixture given as ``{symbol: fraction}``
-    (normalised to 1; air is ``{"N": 0.7553, "O": 0.2318, "Ar": 0.0128, "C": 0.0001}``)."""
+def mass_fractions(formula: str | Mapping[str, float]) -> dict[str, float]:
+    """Mass fractions of the elements of a formula or name, or of a mixture given as
+    ``{symbol: fraction}`` (normalised to 1; air is ``{"N": 0.7553, "O": 0.2318, "Ar":
+    0.0128, "C": 0.0001}``), keyed by symbol in alphabetical order: the weights of the
+    mixture rule behind :func:`mass_attenuation`.
+
+    Raises
+    ------
+    MaterialError
+        Not an element, known name, formula or mixture.
+    """
     if isinstance(formula, Mapping):
         db = _database()
         bad = [k for k in formula if k not in db]
@@ -242,7 +250,7 @@ def mass_attenuation(formula: str | Mapping[str, float], energy: Any) -> np.ndar
         Unknown material, or an energy outside 1 keV to 100 GeV.
     """
     e = _checked(energy)
-    composition = _mass_fractions(formula)
+    composition = mass_fractions(formula)
     flat = np.ravel(e).astype(float)
     sigma = sum(w * _element_attenuation(el, flat) for el, w in composition.items())
     return np.asarray(sigma).reshape(e.shape)
@@ -267,7 +275,7 @@ def partial_attenuation(formula: str | Mapping[str, float], energy: Any) -> np.n
         :func:`mass_attenuation` (to rounding).
     """
     e = _checked(energy)
-    composition = _mass_fractions(formula)
+    composition = mass_fractions(formula)
     flat = np.ravel(e).astype(float)
     out = np.zeros((flat.size, len(PARTIAL_PROCESSES)))
     for el, w in composition.items():

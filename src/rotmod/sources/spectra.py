@@ -32,6 +32,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import astropy.units as u
 import numpy as np
 
 from rotmod.errors import ParameterError
@@ -136,12 +137,12 @@ def spectral_columns(
             "response: spectral fits take a response of one attitude; a drifting observation "
             f"({len(parts)} attitude intervals) is not supported yet")
     spec = parts[0][1]
+    _check_energy_dependence(spec.instrument, detector_response)
     det = spec.instrument.detectors
-    if det.thickness <= 0:
-        raise ParameterError(
-            "response: the instrument's detectors must have a thickness and a material for an "
-            "energy response (a flat face counts every photon at every energy)")
     nodes = np.asarray(detector_response.energies, dtype=float)
+    if nodes.size < 2:
+        raise ParameterError("detector_response must be tabulated at two or more energies "
+                             "(the true-energy bins lie between them)")
     theta = np.degrees(position_grid(spec.grid, positions).directions()[0].value)
     n_det, n_t = response.n_det, response.n_time
     check_memory(8.0 * theta.size * nodes.size * n_det * n_t,
@@ -168,6 +169,38 @@ def spectral_columns(
                            np.asarray(detector_response.channel_edges, dtype=float), theta)
 
 
+def _check_energy_dependence(instrument: Any, detector_response: DetectorResponse) -> None:
+    """The instrument's response must follow energy as the detector response does: thick
+    detectors of the material it was tabulated for, and coefficients from the database (a
+    fixed one would make every energy's column the same)."""
+    det = instrument.detectors
+    if det.thickness <= 0:
+        raise ParameterError(
+            "response: the instrument's detectors must have a thickness and a material for an "
+            "energy response (a flat face counts every photon at every energy)")
+    if det.material.mass_attenuation is not None:
+        raise ParameterError(
+            "response: the detectors' material has a fixed mass_attenuation; an energy "
+            "response needs the database's, which depends on energy")
+    mask = instrument.mask
+    fixed = mask.mu if mask.mu is not None else mask.material.mass_attenuation
+    if fixed is not None and (fixed.value if isinstance(fixed, u.Quantity) else fixed) != 0:
+        raise ParameterError(
+            "response: the mask has a fixed attenuation coefficient; an energy response needs "
+            "the database's (only 0, a transparent mask, is the same at every energy)")
+    made_for = detector_response.detectors
+    if made_for is None:
+        raise ParameterError("detector_response does not say which detector it was tabulated "
+                             "for; make it with rotmod.spectral.detector.tabulate_response")
+    same = (made_for.diameter == det.diameter and made_for.thickness == det.thickness
+            and made_for.material == det.material)
+    if not same:
+        raise ParameterError(
+            f"detector_response was tabulated for {made_for.diameter:g} cm x "
+            f"{made_for.thickness:g} cm {made_for.material.name}, the instrument has "
+            f"{det.diameter:g} cm x {det.thickness:g} cm {det.material.name} detectors")
+
+
 @dataclass(frozen=True)
 class SourceSpectraFit:
     """Result of :func:`fit_spectra`.
@@ -188,6 +221,8 @@ class SourceSpectraFit:
     loglike : float
         ``ln L`` at the maximum (less the data's constant,
         :func:`rotmod.sources.likelihood.log_likelihood`).
+    converged : bool
+        As :attr:`rotmod.spectral.SpectralFit.converged`.
     """
 
     models: tuple[SpectralModel, ...]
@@ -196,6 +231,7 @@ class SourceSpectraFit:
     covariance: np.ndarray
     background: np.ndarray
     loglike: float
+    converged: bool
 
 
 def fit_spectra(
@@ -266,7 +302,10 @@ def fit_spectra(
                                  f"(n_det, n_channels) = {(n_det, n_c)}")
         if off_exposure is None:
             raise ParameterError("off_exposure (s) is required with off_counts")
-        t_off = np.broadcast_to(np.asarray(off_exposure, dtype=float), (n_det,))
+        try:
+            t_off = np.broadcast_to(np.asarray(off_exposure, dtype=float), (n_det,))
+        except (TypeError, ValueError):
+            t_off = np.array([np.nan])
         if not np.all(np.isfinite(t_off)) or np.any(t_off <= 0):
             raise ParameterError("off_exposure must be finite seconds > 0 (one, or one per "
                                  "detector)")
@@ -293,7 +332,7 @@ def fit_spectra(
     found = minimise_statistic(statistic, models, free)
     ll, best = profile(list(found.models))
     return SourceSpectraFit(found.models, found.errors, found.pegged, found.covariance,
-                            best.x.reshape(n_det, n_c), float(ll))
+                            best.x.reshape(n_det, n_c), float(ll), found.converged)
 
 
 def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[SpectralModel],
@@ -302,6 +341,9 @@ def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[Sp
     rate per detector and channel (counts/s, broadcast to ``(n_det, n_c)``)."""
     n_det, n_t, n_c = columns.shape
     expo = _exposure(exposure, n_det, n_t)
+    if len(models) != columns.columns.shape[0]:
+        raise ParameterError(f"models must give one spectrum per source "
+                             f"({columns.columns.shape[0]}), got {len(models)}")
     rate = sum(columns.rates(k, m) for k, m in enumerate(models)) + np.broadcast_to(
         np.asarray(background, dtype=float), (n_det, n_c))[:, None, :]
     return rate * expo[:, :, None]
@@ -312,12 +354,12 @@ def _exposure(exposure: Any, n_det: int, n_t: int) -> np.ndarray:
     """``exposure`` as ``(n_det, n_t)`` seconds, or a ParameterError naming the rule."""
     try:
         e = np.asarray(exposure, dtype=float)
-        expo = np.broadcast_to(e, (n_det, n_t)) if e.ndim in (1, 2) else None
+        expo = np.broadcast_to(e, (n_det, n_t)) if e.ndim <= 2 else None
     except (TypeError, ValueError):
         expo = None
     if expo is None or not np.all(np.isfinite(expo)) or np.any(expo < 0):
-        raise ParameterError(f"exposure must be finite seconds >= 0 of shape ({n_t},) or "
-                             f"({n_det}, {n_t})")
+        raise ParameterError(f"exposure must be finite seconds >= 0: one value, or of shape "
+                             f"({n_t},) or ({n_det}, {n_t})")
     return expo
 
 

@@ -40,7 +40,6 @@ Physics (each approximation with its size in ``docs/detector_response.md``):
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,7 +51,7 @@ from rotmod._validate import as_angle, as_angle_scalar, as_array, as_energy, as_
 from rotmod.energy import FWHM_PER_SIGMA, EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray
-from rotmod.materials import DATABASE_RANGE_KEV, partial_attenuation
+from rotmod.materials import DATABASE_RANGE_KEV, mass_fractions, partial_attenuation
 from rotmod.montecarlo import seed_sequence
 from rotmod.montecarlo._rng import chunk_states
 from rotmod.spectral import _detector_kernels as _k
@@ -111,7 +110,6 @@ _K_EDGE_GUESS = {"Zn": 9.6586, "Ge": 11.1031, "Br": 13.4737, "Cd": 26.7112, "Te"
 
 _GRID_PER_DECADE = 1000
 _N_CHUNKS = 16
-_FORMULA = re.compile(r"([A-Z][a-z]?)(\d*\.?\d*)")
 
 
 @dataclass(frozen=True)
@@ -129,12 +127,9 @@ class _Medium:
 
 
 def _elements(name: str) -> list[str]:
-    """Element symbols of a chemical formula (``"CdZnTe"``, ``"LaBr3"``); a name that is no
-    formula (an alias such as ``"germanium"``) gives []: no fluorescence is modelled."""
-    parts = _FORMULA.findall(name.strip())
-    if not parts or "".join(s + n for s, n in parts) != name.strip():
-        return []
-    return sorted({s for s, _ in parts})
+    """Element symbols of the material ``name`` (a formula, an element or an alias such as
+    ``"germanium"``), from the mixture rule's own mass fractions."""
+    return sorted(mass_fractions(name))
 
 
 def _k_edge(symbol: str) -> tuple[float, float]:
@@ -161,15 +156,8 @@ def _medium(det: DetectorArray, e_max: float) -> _Medium:
     fl = [s for s in _elements(mat.name) if s in K_FLUORESCENCE]
     cols, lines, edges, jumps = [], [], [], []
     if fl:
-        # Mass fractions from the mixture rule itself: the material's photoabsorption is
-        # sum_j w_j tau_j (exactly, XCOM's rule), solved by least squares on the grid.
-        every = _elements(mat.name)
-        pick = grid[:: max(1, n // 200)]
-        a = np.stack([partial_attenuation(s, pick)[:, 2] for s in every], axis=1)
-        b = partial_attenuation(mat.name, pick)[:, 2]
-        scale = 1.0 / b
-        w = np.linalg.lstsq(a * scale[:, None], b * scale, rcond=None)[0]
-        frac = dict(zip(every, w, strict=True))
+        # The mixture rule's weights: the material's photoabsorption is sum_j w_j tau_j.
+        frac = mass_fractions(mat.name)
         cum = np.zeros(n)
         for s in fl:
             edge, jump = _k_edge(s)
@@ -505,6 +493,9 @@ class DetectorResponse:
     resolution : EnergyResolution or None
     n_photons : int
         Photons per (angle, energy).
+    detectors : DetectorArray or None
+        The detector it was tabulated for (its diameter, thickness and material; a response
+        of the modulator checks it against the instrument's).
     """
 
     angles: np.ndarray
@@ -516,6 +507,7 @@ class DetectorResponse:
     full_energy: np.ndarray
     resolution: EnergyResolution | None
     n_photons: int
+    detectors: DetectorArray | None = None
 
     def _weights(self, theta: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Grid neighbours ``i, j``, the fraction in theta and the angles (deg)."""
@@ -621,7 +613,7 @@ def tabulate_response(
             err[a, i] = s.interaction_error
             full[a, i] = s.full_energy
             mat[a, i] = _fold(s.centres, s.continuum, s.energy, s.full_energy, ch, resolution)
-    return DetectorResponse(ang, e, ch, inter, err, mat, full, resolution, n)
+    return DetectorResponse(ang, e, ch, inter, err, mat, full, resolution, n, det)
 
 
 def sample_klein_nishina(energy: Any, n: int, seed: Any = None) -> tuple[np.ndarray, np.ndarray]:

@@ -183,8 +183,16 @@ def wstat(n_on: np.ndarray, n_off: np.ndarray, alpha: float, mu_sig: np.ndarray)
     n_off = np.asarray(n_off, dtype=float)
     s = np.asarray(mu_sig, dtype=float)
     a = float(alpha)
+    if not (np.isfinite(a) and a > 0):
+        raise ParameterError(f"alpha (the background's scaling) must be finite and > 0, got {a}")
     c = a * (n_on + n_off) - (1.0 + a) * s
-    b = (c + np.sqrt(c * c + 4.0 * (1.0 + a) * a * n_off * s)) / (2.0 * a * (1.0 + a))
+    root = np.sqrt(c * c + 4.0 * (1.0 + a) * a * n_off * s)
+    # The root of the quadratic without cancellation: for c < 0 the textbook form subtracts
+    # two nearly equal numbers (a bright source on a faint background), so use the product
+    # of the roots, b = 2 n_off s / (root - c).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b = np.where(c >= 0, (c + root) / (2.0 * a * (1.0 + a)),
+                     2.0 * n_off * s / np.where(root - c > 0, root - c, 1.0))
     mu_on = s + a * b
     with np.errstate(divide="ignore", invalid="ignore"):
         t_on = np.where(n_on > 0, n_on * np.log(n_on / mu_on), 0.0)
@@ -213,6 +221,10 @@ class SpectralFit:
         (:attr:`SpectralModel.limits`, astromodels' min/max): the data do not bound them
         there (a Band ``beta`` at -5 says the spectrum falls faster than any power law the
         data can tell), so they have no curvature error; XSPEC calls such parameters pegged.
+    converged : bool
+        The optimiser reported success and the curvature of every parameter not pegged is
+        positive (errors finite).  False: treat the numbers with care (the errors of the
+        parameters concerned are NaN).
     statistic : float
         Cash or W statistic at the maximum (``stat_name`` says which).
     stat_name : str
@@ -227,6 +239,7 @@ class SpectralFit:
     stat_name: str
     n_channels: int
     pegged: tuple[str, ...] = ()
+    converged: bool = True
 
 
 def _objective(spectrum: CountsSpectrum, channels: np.ndarray):
@@ -273,19 +286,33 @@ def fit_spectrum(
     """
     if spectrum.response is None:
         raise ParameterError("spectrum has no response; fit_spectrum needs one")
-    chans = np.arange(spectrum.counts.size)[channels if channels is not None else slice(None)]
+    try:
+        chans = np.arange(spectrum.counts.size)[channels if channels is not None
+                                                else slice(None)]
+    except (IndexError, TypeError):
+        raise ParameterError(f"channels must select among the {spectrum.counts.size} "
+                             f"channels (a slice, indices or a boolean mask), got "
+                             f"{channels!r}") from None
+    if chans.size == 0:
+        raise ParameterError("channels selects no channel: nothing to fit")
+    if not np.any(spectrum.response.area > 0):
+        raise ParameterError("spectrum.response.area is 0 everywhere: nothing can be detected")
     stat, stat_name = _objective(spectrum, chans)
+    if isinstance(free, str):  # one name, not its letters
+        free = (free,)
     best = minimise_statistic(lambda models: stat(models[0]), [model],
                               None if free is None else [free])
     return SpectralFit(best.models[0], best.free[0], best.errors[0], best.covariance,
-                       best.statistic, stat_name, int(chans.size), best.pegged[0])
+                       best.statistic, stat_name, int(chans.size), best.pegged[0],
+                       best.converged)
 
 
 @dataclass(frozen=True)
 class StatisticMinimum:
     """Result of :func:`minimise_statistic`: per model the fitted copy, its free parameters,
     their errors and the pegged ones; the covariance of all free parameters (models in
-    order) and the statistic at the minimum."""
+    order), the statistic at the minimum and whether the minimisation converged (see
+    :attr:`SpectralFit.converged`)."""
 
     models: tuple[SpectralModel, ...]
     free: tuple[tuple[str, ...], ...]
@@ -293,6 +320,7 @@ class StatisticMinimum:
     pegged: tuple[tuple[str, ...], ...]
     covariance: np.ndarray
     statistic: float
+    converged: bool
 
 
 def minimise_statistic(
@@ -365,16 +393,23 @@ def minimise_statistic(
         return f_natural(np.where(logp, np.exp(x), x))
 
     x = _to_fit(start, logp)
+    if not np.isfinite(f(x)):
+        raise ParameterError("the start models cannot describe the data (the statistic is "
+                             "infinite there): give start values that predict counts where "
+                             "there are counts")
     # Tolerances: 1e-6 in -2 ln L is far below any statistical meaning (1 is one sigma^2)
     # and above the noise of a statistic that is itself a maximisation (profiled
-    # backgrounds converge to ~1e-8), which a tighter ``fatol`` would chase to ``maxfev``.
+    # backgrounds, converged to ~1e-10 .. 1e-8), which a tighter ``fatol`` would chase to
+    # ``maxfev``.
     best = optimize.minimize(f, x, method="Nelder-Mead",
                              options={"xatol": 1e-8, "fatol": 1e-6, "maxiter": 20000,
                                       "maxfev": 40000, "adaptive": True})
     x = best.x
     with np.errstate(invalid="ignore"):  # Powell's line search meets inf beyond a limit
-        best = optimize.minimize(f, x, method="Powell", options={"xtol": 1e-10, "ftol": 1e-12})
-    x = best.x if best.fun <= f(x) else x
+        polish = optimize.minimize(f, x, method="Powell",
+                                   options={"xtol": 1e-10, "ftol": 1e-12})
+    success = bool(best.success or polish.success)
+    x = polish.x if polish.fun <= f(x) else x
     p_hat = np.where(logp, np.exp(x), x)
     # Pegged: within 1e-4 (of the limit's scale) of a finite limit.
     finite = np.isfinite(lims)
@@ -390,19 +425,33 @@ def minimise_statistic(
             full[inner] = p
             return f_natural(full)
 
-        try:
-            cov[np.ix_(inner, inner)] = 2.0 * np.linalg.inv(_hessian(f_inner, p_hat[inner]))
-        except np.linalg.LinAlgError:
-            pass
+        # Steps first from the values' scale, then from the errors that gives (a step of
+        # ~0.3 sigma changes -2 ln L by ~0.1: the curvature without the noise of a tiny step
+        # or the anharmonicity of a large one), as MINUIT's HESSE does.
+        h = 1e-4 * np.maximum(np.abs(p_hat[inner]), 1e-3)
+        for _ in range(2):
+            try:
+                c_in = 2.0 * np.linalg.inv(_hessian(f_inner, p_hat[inner], h))
+            except np.linalg.LinAlgError:
+                break
+            cov[np.ix_(inner, inner)] = c_in
+            d = np.diag(c_in)
+            if not np.all(np.isfinite(d) & (d > 0)):
+                break
+            # ... but not across a limit.
+            room = np.minimum(p_hat[inner] - lims[inner, 0], lims[inner, 1] - p_hat[inner])
+            h = np.minimum(0.3 * np.sqrt(d), 0.5 * room)
     var = np.diag(cov)
-    err = np.sqrt(np.where(var > 0, var, np.nan))
+    positive = np.isfinite(var) & (var > 0)
+    err = np.sqrt(np.where(positive, var, np.nan))
+    success = success and bool(np.all(positive[inner]))
     fitted = build(p_hat)
     errors = tuple({p: float(err[k]) for k, (j, p) in enumerate(owner) if j == i}
                    for i in range(len(models)))
     pegged = tuple(tuple(p for k, (j, p) in enumerate(owner) if j == i and at[k])
                    for i in range(len(models)))
     return StatisticMinimum(tuple(fitted), tuple(free), errors, pegged, cov,
-                            float(f_natural(p_hat)))
+                            float(f_natural(p_hat)), success)
 
 
 def _to_fit(p: np.ndarray, logp: np.ndarray) -> np.ndarray:
@@ -413,10 +462,9 @@ def _to_fit(p: np.ndarray, logp: np.ndarray) -> np.ndarray:
     return x
 
 
-def _hessian(f: Any, x: np.ndarray) -> np.ndarray:
-    """Central-difference Hessian of ``f`` at ``x`` (steps 1e-4 of each value's scale)."""
+def _hessian(f: Any, x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Central-difference Hessian of ``f`` at ``x`` with steps ``h``."""
     n = x.size
-    h = 1e-4 * np.maximum(np.abs(x), 1e-3)
     out = np.empty((n, n))
     f0 = f(x)
     for i in range(n):

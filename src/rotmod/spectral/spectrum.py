@@ -425,22 +425,26 @@ def minimise_statistic(
             full[inner] = p
             return f_natural(full)
 
-        # Steps first from the values' scale, then from the errors that gives (a step of
-        # ~0.3 sigma changes -2 ln L by ~0.1: the curvature without the noise of a tiny step
-        # or the anharmonicity of a large one), as MINUIT's HESSE does.
+        # Steps first from the values' scale, then from the curvature that gives: 0.3 of
+        # each parameter's conditional error sqrt(2 / H_ii) changes -2 ln L by ~0.1 -- the
+        # curvature without the rounding noise of a tiny step or the anharmonicity of a
+        # large one (MINUIT's HESSE chooses its steps so).  The conditional, not the
+        # marginal, error: along a long, narrow valley (Band's K and xp) marginal steps
+        # would cross it and make the cross terms meaningless.
         h = 1e-4 * np.maximum(np.abs(p_hat[inner]), 1e-3)
         for _ in range(2):
+            hess = _hessian(f_inner, p_hat[inner], h)
             try:
-                c_in = 2.0 * np.linalg.inv(_hessian(f_inner, p_hat[inner], h))
+                c_in = 2.0 * np.linalg.inv(hess)
             except np.linalg.LinAlgError:
                 break
             cov[np.ix_(inner, inner)] = c_in
-            d = np.diag(c_in)
-            if not np.all(np.isfinite(d) & (d > 0)):
+            curv = np.diag(hess)
+            if not np.all(np.isfinite(curv) & (curv > 0)):
                 break
             # ... but not across a limit.
             room = np.minimum(p_hat[inner] - lims[inner, 0], lims[inner, 1] - p_hat[inner])
-            h = np.minimum(0.3 * np.sqrt(d), 0.5 * room)
+            h = np.minimum(0.3 * np.sqrt(2.0 / curv), 0.5 * room)
     var = np.diag(cov)
     positive = np.isfinite(var) & (var > 0)
     err = np.sqrt(np.where(positive, var, np.nan))

@@ -384,7 +384,11 @@ class BalloonBackground:
     def components(self, response: DetectorResponse, detectors: DetectorArray,
                    altitude: Any) -> dict[str, np.ndarray]:
         """Counts s^-1 per channel of each component at one altitude (km): ``"cxb"``,
-        ``"continuum"`` and ``"line"``."""
+        ``"continuum"`` and ``"line"``.
+
+        The line's photons are counted with the response at the node of the true-energy bin
+        holding 511 keV: include 511 keV among the response's energies, or the peak appears
+        at the nearest node."""
         h = as_scalar(altitude, "altitude", lo=0.0)
         x = float(self.depth(h))
         x0 = self.reference_depth

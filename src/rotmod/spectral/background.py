@@ -381,6 +381,31 @@ class BalloonBackground:
         e = as_energy(energy, "energy", lo=CXB_RANGE_KEV[0], hi=CXB_RANGE_KEV[1], lo_open=False)
         return _cxb(e) * self.atmosphere.transmission(e, zenith, altitude)
 
+    def intensity(self, energy: Any, zenith: Any, altitude: Any) -> np.ndarray:
+        """Continuum intensity at the balloon, CXB plus atmospheric (photons cm^-2 s^-1 sr^-1
+        keV^-1; the 511 keV line is :func:`annihilation_line`), with the mask's mean opacity
+        applied to the downward half: what a Monte Carlo draws background photons from.
+
+        Parameters
+        ----------
+        energy : float, array_like or Quantity
+            keV, within :data:`MIZUNO_RANGE_KEV`.
+        zenith : float, array_like or Quantity
+            Arrival direction (deg if plain), 0-180.
+        altitude : float
+            Balloon altitude (km).
+        """
+        e = as_energy(energy, "energy", lo=MIZUNO_RANGE_KEV[0], hi=MIZUNO_RANGE_KEV[1],
+                      lo_open=False)
+        z = as_angle(zenith, "zenith", lo=0.0, hi=180.0)
+        h = as_scalar(altitude, "altitude", lo=0.0)
+        x = float(self.depth(h))
+        down = np.where(z < np.pi / 2, 1.0 - self.mask_opacity, 1.0)
+        total = (_cxb(e) * self.atmosphere.transmission(e, np.degrees(z), h)
+                 + atmospheric_continuum(e, np.degrees(z), x,
+                                         reference_depth=self.reference_depth))
+        return down * total
+
     def components(self, response: DetectorResponse, detectors: DetectorArray,
                    altitude: Any) -> dict[str, np.ndarray]:
         """Counts s^-1 per channel of each component at one altitude (km): ``"cxb"``,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad, simpson
 
-from rotmod import DetectorArray, Material
+from rotmod import DetectorArray, Mask, Material
 from rotmod.errors import ParameterError
 from rotmod.spectral.atmosphere import Atmosphere
 from rotmod.spectral.background import (
@@ -24,6 +24,7 @@ from rotmod.spectral.background import (
     diffuse_rates,
     fit_normalisations,
     internal_rates,
+    mask_transmission,
 )
 from rotmod.spectral.detector import DetectorResponse
 from rotmod.spectral.models import Gaussian, PowerLaw
@@ -233,6 +234,41 @@ def test_fold_against_independent_quadrature():
         assert comp[key][1] == pytest.approx(total, rel=1e-4)
 
 
+def test_mask_transmission():
+    # Opaque slats a = 1, b = 1, h = 2 cm: b/(a+b) at the zenith; against a brute-force
+    # average over azimuth of max(0, b - h tan z |cos phi|) / (a+b) (1e5 azimuths: 1e-6);
+    # a thin mask is its open fraction at every angle; it closes toward the horizon.
+    mask = Mask(1.0, 1.0, 2.0, 50.0, mu=np.inf)
+    z = np.array([0.0, 10.0, 26.565, 45.0, 70.0, 89.0])
+    t = mask_transmission(mask, z)
+    assert t[0] == pytest.approx(0.5, rel=1e-12)
+    phi = np.linspace(0.0, 2 * math.pi, 100_001)[:-1]
+    for zi, ti in zip(z, t, strict=True):
+        c = 2.0 * math.tan(math.radians(zi))
+        brute = np.mean(np.maximum(0.0, 1.0 - c * np.abs(np.cos(phi)))) / 2.0
+        assert ti == pytest.approx(brute, abs=1e-6)
+    assert np.all(np.diff(t) < 0)
+    assert float(mask_transmission(mask, 120.0)) == 0.0
+    thin = Mask(1.0, 3.0, 1e-12, 50.0, mu=np.inf)
+    np.testing.assert_allclose(mask_transmission(thin, z), 0.75, rtol=1e-9)
+    # A non-uniform pattern: two gaps of 0.5 cm per period behave as two narrow gaps.
+    split = Mask(1.0, 1.0, 2.0, 50.0, mu=np.inf, slat_edges=[0.25, 0.75, 1.25, 1.75])
+    c = 2.0 * math.tan(math.radians(10.0))
+    brute = 2 * np.mean(np.maximum(0.0, 0.5 - c * np.abs(np.cos(phi)))) / 2.0
+    assert float(mask_transmission(split, 10.0)) == pytest.approx(brute, abs=1e-6)
+    # In the background: the downward half scaled direction by direction.
+    det, resp, _ = _black()
+    flat = _flat(1e-3)
+    full = diffuse_rates(flat, resp, det, upward=False)
+    masked = diffuse_rates(flat, resp, det, upward=False,
+                           downward_factor=lambda th: mask_transmission(mask, np.degrees(th)))
+    assert np.all(masked < 0.5 * full) and np.all(masked > 0)
+    bg = BalloonBackground(_exp_atmosphere(), mask=mask)
+    assert float(bg.intensity(200.0, 30.0, 33.0)) == pytest.approx(
+        float(BalloonBackground(_exp_atmosphere()).intensity(200.0, 30.0, 33.0))
+        * float(mask_transmission(mask, 30.0)), rel=1e-12)
+
+
 def test_line_is_shared_exactly():
     # A narrow line at a node energy lands in its bin; its counts are the angular integral
     # of the line intensity times the projected area (closed form for a flat intensity).
@@ -312,6 +348,10 @@ def test_bad_input():
         BalloonBackground(_exp_atmosphere(), mask_opacity=2.0)
     with pytest.raises(ParameterError, match="atmosphere"):
         BalloonBackground("air")
+    with pytest.raises(ParameterError, match="mask"):
+        BalloonBackground(_exp_atmosphere(), mask="lead")
+    with pytest.raises(ParameterError, match="mask"):
+        mask_transmission(None, 10.0)
     with pytest.raises(ParameterError, match="channel_edges"):
         internal_rates(PowerLaw(), [100.0, 50.0])
     with pytest.raises(ParameterError, match="templates"):

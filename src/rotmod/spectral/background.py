@@ -43,7 +43,7 @@ from scipy.special import erf
 
 from rotmod._validate import as_angle, as_array, as_energy, as_scalar
 from rotmod.errors import ParameterError
-from rotmod.geometry import DetectorArray
+from rotmod.geometry import DetectorArray, Mask
 from rotmod.spectral.atmosphere import Atmosphere
 from rotmod.spectral.detector import DetectorResponse
 from rotmod.spectral.models import SpectralModel
@@ -63,6 +63,7 @@ __all__ = [
     "diffuse_rates",
     "fit_normalisations",
     "internal_rates",
+    "mask_transmission",
 ]
 
 #: Energies (keV) of Gruber et al. (1999)'s fit: 3 keV to 100 GeV.
@@ -222,6 +223,49 @@ def annihilation_line(zenith: Any, depth: Any, *,
     return ANNIHILATION_DOWN * _down_shape(z) * (x / x0) + ANNIHILATION_UP * _up_shape(z)
 
 
+# -- the mask's mean transmission of a diffuse field ------------------------------------------
+
+
+def mask_transmission(mask: Mask, zenith: Any) -> np.ndarray:
+    """Mean geometric transmission of a rotating mask of *opaque* slats for photons arriving
+    from zenith angle ``z`` (< 90 deg), averaged over azimuth (the mask turns).
+
+    A ray at ``z`` crossing the slat pattern at azimuth ``phi`` to the slats' normal is
+    shadowed over ``h tan(z) |cos phi|`` of each gap (``h`` the slats' thickness), so a gap of
+    width ``g`` passes ``max(0, g - c |cos phi|)`` with ``c = h tan z``.  Averaged over
+    ``phi``: ``g - 2c/pi`` for ``c <= g``, else ``(2/pi) [g (pi/2 - phi0) - c (1 - sin phi0)]``
+    with ``cos phi0 = g/c``.  Summed over the gaps of one period and divided by the period.
+    The slats' own transparency (their material at high energy), the mask's outline and tilt
+    are ignored: an upper bound on the opacity.
+
+    Parameters
+    ----------
+    mask : Mask
+    zenith : float, array_like or Quantity
+        deg if plain, 0-180; 0 returned from 90 deg on (the mask is above the detectors).
+    """
+    if not isinstance(mask, Mask):
+        raise ParameterError(f"mask must be a Mask, got {type(mask).__name__}")
+    z = as_angle(zenith, "zenith", lo=0.0, hi=180.0)
+    return _mask_transmission(mask, z)
+
+
+def _mask_transmission(mask: Mask, z: np.ndarray) -> np.ndarray:
+    edges = mask.edges
+    period = float(mask.period)
+    starts, ends = edges[0::2], edges[1::2]
+    gaps = np.append(starts[1:] - ends[:-1], starts[0] + period - ends[-1])
+    zz = np.minimum(z, np.pi / 2 - 1e-12)
+    c = float(mask.thickness) * np.tan(zz)[..., None]
+    g = gaps[gaps > 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi0 = np.arccos(np.clip(g / np.maximum(c, 1e-300), -1.0, 1.0))
+    wide = g - 2.0 * c / np.pi
+    narrow = (2.0 / np.pi) * (g * (np.pi / 2 - phi0) - c * (1.0 - np.sin(phi0)))
+    out = np.where(c <= g, wide, narrow).sum(axis=-1) / period
+    return np.where(z < np.pi / 2, out, 0.0)
+
+
 # -- folding through a detector -------------------------------------------------------------
 
 
@@ -258,7 +302,8 @@ def _kernel(response: DetectorResponse, detectors: DetectorArray,
 
 def diffuse_rates(intensity: Callable[[np.ndarray, np.ndarray], np.ndarray],
                   response: DetectorResponse, detectors: DetectorArray, *,
-                  downward_factor: float = 1.0, upward: bool = True,
+                  downward_factor: float | Callable[[np.ndarray], np.ndarray] = 1.0,
+                  upward: bool = True,
                   line: tuple[float, float] | None = None) -> np.ndarray:
     """Counts per second per channel in one bare detector from a diffuse intensity.
 
@@ -273,8 +318,9 @@ def diffuse_rates(intensity: Callable[[np.ndarray, np.ndarray], np.ndarray],
         geometric midpoints of its nodes).
     detectors : DetectorArray
         The cylinder the response belongs to (radius, thickness).
-    downward_factor : float
-        Multiplies the downward half (the mask's mean transmission), in [0, 1].
+    downward_factor : float or callable
+        Multiplies the downward half (the mask's mean transmission), in [0, 1]; or a function
+        of the zenith angle (rad, array) giving it per direction (:func:`mask_transmission`).
     upward : bool
         Include the directions from below (the bottom face).
     line : (mu, sigma), optional
@@ -292,7 +338,7 @@ def diffuse_rates(intensity: Callable[[np.ndarray, np.ndarray], np.ndarray],
     if not isinstance(detectors, DetectorArray):
         raise ParameterError(
             f"detectors must be a DetectorArray, got {type(detectors).__name__}")
-    if not 0.0 <= downward_factor <= 1.0:
+    if not callable(downward_factor) and not 0.0 <= downward_factor <= 1.0:
         raise ParameterError(f"downward_factor must be in [0, 1], got {downward_factor!r}")
     if response.angles[0] != 0.0:
         raise ParameterError("response.angles must start at 0 deg for a diffuse background")
@@ -301,11 +347,15 @@ def diffuse_rates(intensity: Callable[[np.ndarray, np.ndarray], np.ndarray],
     edges = _node_edges(response.energies)
     lo, hi = edges[:-1], edges[1:]
     out = np.zeros(response.channel_edges.size - 1)
-    halves = [(theta, downward_factor)]
+    down = (np.asarray(downward_factor(theta), dtype=float) if callable(downward_factor)
+            else np.full(theta.shape, float(downward_factor)))
+    if np.any(~((down >= 0) & (down <= 1))):
+        raise ParameterError("downward_factor must give values in [0, 1]")
+    halves = [(theta, down)]
     if upward:
-        halves.append((np.pi - theta, 1.0))
+        halves.append((np.pi - theta, np.ones(theta.shape)))
     for zen, factor in halves:
-        if factor == 0.0:
+        if not np.any(factor):
             continue
         if line is None:
             # 6-point Gauss-Legendre in ln E on each true-energy bin.
@@ -320,7 +370,7 @@ def diffuse_rates(intensity: Callable[[np.ndarray, np.ndarray], np.ndarray],
             share = 0.5 * (erf((hi - mu) / (sig * math.sqrt(2.0)))
                            - erf((lo - mu) / (sig * math.sqrt(2.0))))
             flux = intensity(np.array([[mu]]), zen[:, None]).reshape(-1, 1) * share[None, :]
-        out += factor * np.einsum("t,te,tec->c", w, flux, kern)
+        out += np.einsum("t,te,tec->c", w * factor, flux, kern)
     return out
 
 
@@ -352,13 +402,18 @@ class BalloonBackground:
         Intrinsic width of the 511 keV line (keV), user-set (default 1 keV, far below a
         scintillator's resolution; no published value is used).
     mask_opacity : float
-        Mean fraction of downward photons the mask stops, in [0, 1] (0: no mask).
+        Mean fraction of downward photons the mask stops, in [0, 1], given by the user (0: no
+        mask).
+    mask : Mask, optional
+        Or compute it: the downward intensity is multiplied by :func:`mask_transmission` (opaque
+        slats, per zenith angle) and by ``1 - mask_opacity``.
     """
 
     atmosphere: Atmosphere
     reference_depth: float = MIZUNO_DEPTH
     line_sigma: float = 1.0
     mask_opacity: float = 0.0
+    mask: Mask | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.atmosphere, Atmosphere):
@@ -370,6 +425,15 @@ class BalloonBackground:
             self.line_sigma, "line_sigma", lo=0.0, lo_open=True))
         object.__setattr__(self, "mask_opacity", as_scalar(
             self.mask_opacity, "mask_opacity", lo=0.0, hi=1.0))
+        if self.mask is not None and not isinstance(self.mask, Mask):
+            raise ParameterError(f"mask must be a Mask or None, got {type(self.mask).__name__}")
+
+    def _downward(self, z: np.ndarray) -> np.ndarray:
+        """The mask's mean transmission of downward photons at zenith ``z`` (rad)."""
+        t = np.full(np.shape(z), 1.0 - self.mask_opacity)
+        if self.mask is not None:
+            t = t * _mask_transmission(self.mask, np.asarray(z, dtype=float))
+        return t
 
     def depth(self, altitude: Any) -> np.ndarray:
         """Vertical column above the balloon (g/cm^2) at ``altitude`` (km)."""
@@ -400,7 +464,7 @@ class BalloonBackground:
         z = as_angle(zenith, "zenith", lo=0.0, hi=180.0)
         h = as_scalar(altitude, "altitude", lo=0.0)
         x = float(self.depth(h))
-        down = np.where(z < np.pi / 2, 1.0 - self.mask_opacity, 1.0)
+        down = np.where(z < np.pi / 2, self._downward(z), 1.0)
         total = (_cxb(e) * self.atmosphere.transmission(e, np.degrees(z), h)
                  + atmospheric_continuum(e, np.degrees(z), x,
                                          reference_depth=self.reference_depth))
@@ -417,7 +481,7 @@ class BalloonBackground:
         h = as_scalar(altitude, "altitude", lo=0.0)
         x = float(self.depth(h))
         x0 = self.reference_depth
-        down = 1.0 - self.mask_opacity
+        down = self._downward
         atm = self.atmosphere
 
         def cxb(e: np.ndarray, z: np.ndarray) -> np.ndarray:

@@ -9,9 +9,12 @@ holds what turns them into spectra in physical units:
 * :mod:`rotmod.spectral.detector`: the detectors' energy response (a Monte Carlo of photon
   transport in a cylinder, tabulated redistribution matrices);
 * :mod:`rotmod.spectral.atmosphere`: the residual atmosphere's column and transmission above a
-  balloon (NRLMSIS via pymsis).
+  balloon (NRLMSIS via pymsis);
+* :mod:`rotmod.spectral.background`: the diffuse background at a balloon (CXB through the
+  air, atmospheric continuum and 511 keV line, internal component) folded into counts per
+  channel, along a flight.
 
-The first two are re-exported here; the last two are imported from their modules (they load
+The first two are re-exported here; the last three are imported from their modules (they load
 numba kernels and astropy's coordinates, which a reader of spectra does not need).
 """
 

@@ -19,7 +19,6 @@ from rotmod.sources.spectra import (
     expected_counts,
     fit_spectra,
     fold_channels,
-    node_edges,
     spectral_columns,
 )
 from rotmod.spectral import Band, PowerLaw
@@ -85,10 +84,10 @@ def test_atmosphere_scales_each_energy(detector_response) -> None:
         spectral_columns(resp, (5.0, 30.0), detector_response, transmission=2.0)
 
 
-def test_node_edges_bracket_the_nodes() -> None:
+def test_energy_bins_bracket_the_nodes(detector_response) -> None:
     """Bins run between the nodes' geometric midpoints, the outer ones as wide (in log) as
     their neighbours' half-spacing on each side."""
-    edges = node_edges(NODES)
+    edges = detector_response.energy_edges
     assert np.all(edges[:-1] < NODES) and np.all(NODES < edges[1:])
     np.testing.assert_allclose(np.log(edges[1:-1]), 0.5 * np.log(NODES[1:] * NODES[:-1]))
     np.testing.assert_allclose(np.log(NODES[0] / edges[0]), np.log(edges[1] / NODES[0]))

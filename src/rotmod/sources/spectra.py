@@ -47,16 +47,8 @@ from rotmod.spectral.spectrum import minimise_statistic
 
 __all__ = [
     "SourceSpectraFit", "SpectralColumns", "expected_counts", "fit_spectra", "fold_channels",
-    "node_edges", "spectral_columns",
+    "spectral_columns",
 ]
-
-
-def node_edges(nodes: np.ndarray) -> np.ndarray:
-    """True-energy bin edges around node energies: geometric midpoints, the outer edges as
-    far (in log) beyond the end nodes as the nearest midpoints."""
-    ln = np.log(nodes)
-    mid = 0.5 * (ln[1:] + ln[:-1])
-    return np.exp(np.concatenate([[2 * ln[0] - mid[0]], mid, [2 * ln[-1] - mid[-1]]]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,7 +63,8 @@ class SpectralColumns:
     redistribution : ndarray, shape (n_src, n_e, n_c)
         The detector's redistribution at each source's zenith angle.
     energy_edges : ndarray, shape (n_e + 1,)
-        True-energy bins (keV) around the nodes (:func:`node_edges`).
+        True-energy bins (keV) around the nodes
+        (:attr:`rotmod.spectral.detector.DetectorResponse.energy_edges`).
     channel_edges : ndarray, shape (n_c + 1,)
     theta : ndarray, shape (n_src,)
         Zenith angles (deg).
@@ -140,9 +133,7 @@ def spectral_columns(
     _check_energy_dependence(spec.instrument, detector_response)
     det = spec.instrument.detectors
     nodes = np.asarray(detector_response.energies, dtype=float)
-    if nodes.size < 2:
-        raise ParameterError("detector_response must be tabulated at two or more energies "
-                             "(the true-energy bins lie between them)")
+    edges = detector_response.energy_edges
     theta = np.degrees(position_grid(spec.grid, positions).directions()[0].value)
     n_det, n_t = response.n_det, response.n_time
     check_memory(8.0 * theta.size * nodes.size * n_det * n_t,
@@ -165,7 +156,7 @@ def spectral_columns(
             raise ParameterError("transmission must lie in [0, 1] (a fraction of photons)")
         cols *= trans[:, :, None, None]
     red = detector_response.matrix_at(theta)
-    return SpectralColumns(cols, red, node_edges(nodes),
+    return SpectralColumns(cols, red, edges,
                            np.asarray(detector_response.channel_edges, dtype=float), theta)
 
 

@@ -269,12 +269,6 @@ def _mask_transmission(mask: Mask, z: np.ndarray) -> np.ndarray:
 # -- folding through a detector -------------------------------------------------------------
 
 
-def _node_edges(nodes: np.ndarray) -> np.ndarray:
-    ln = np.log(nodes)
-    mid = 0.5 * (ln[1:] + ln[:-1])
-    return np.exp(np.concatenate([[2 * ln[0] - mid[0]], mid, [2 * ln[-1] - mid[-1]]]))
-
-
 def _theta_nodes() -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes in theta (rad) on [0, 90 deg] split at the shapes' breaks, and
     weights including ``2 pi sin(theta)``."""
@@ -344,7 +338,7 @@ def diffuse_rates(intensity: Callable[[np.ndarray, np.ndarray], np.ndarray],
         raise ParameterError("response.angles must start at 0 deg for a diffuse background")
     theta, w = _theta_nodes()
     kern = _kernel(response, detectors, theta)  # (t, e, c)
-    edges = _node_edges(response.energies)
+    edges = response.energy_edges
     lo, hi = edges[:-1], edges[1:]
     out = np.zeros(response.channel_edges.size - 1)
     down = (np.asarray(downward_factor(theta), dtype=float) if callable(downward_factor)

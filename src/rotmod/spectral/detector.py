@@ -509,6 +509,18 @@ class DetectorResponse:
     n_photons: int
     detectors: DetectorArray | None = None
 
+    @property
+    def energy_edges(self) -> np.ndarray:
+        """True-energy bins around the nodes :attr:`energies`: the geometric midpoints, the
+        outer edges as far (in log) beyond the end nodes as the nearest midpoints.  A
+        spectrum's photons in bin ``i`` are counted with the response at node ``i`` (keep
+        the nodes closer than the resolution's FWHM: docs/spectra.md measures the bias)."""
+        if self.energies.size < 2:
+            raise ParameterError("a detector response needs two or more energies for bins")
+        ln = np.log(self.energies)
+        mid = 0.5 * (ln[1:] + ln[:-1])
+        return np.exp(np.concatenate([[2 * ln[0] - mid[0]], mid, [2 * ln[-1] - mid[-1]]]))
+
     def _weights(self, theta: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Grid neighbours ``i, j``, the fraction in theta and the angles (deg)."""
         deg = np.degrees(as_angle(theta, "theta", lo=float(self.angles[0]),

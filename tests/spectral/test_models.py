@@ -63,6 +63,22 @@ def test_power_law_normalisation_and_gaussian_line_flux() -> None:
     assert line.integral(400.0, 600.0)[0] == pytest.approx(2e-3, rel=1e-12)
 
 
+@pytest.mark.parametrize("model", MODELS, ids=lambda m: type(m).__name__)
+def test_node_weights_are_exact_for_a_response_linear_in_log_energy(model) -> None:
+    """The node weights integrate the spectrum against every response linear in ln E between
+    the nodes exactly: a constant (the photons between the first and last node) and ln E
+    itself, against adaptive quadrature; nodes coarse (6 per decade) and across the line."""
+    nodes = np.geomspace(60.0, 3000.0, 11)
+    w = model.node_weights(nodes)
+    points = [x for x in (511.0, getattr(model, "break_energy", -1.0)) if 60 < x < 3000]
+    def integral(f):
+        return quad(f, 60.0, 3000.0, limit=800, epsabs=0.0, epsrel=1e-12, points=points)[0]
+    assert w.sum() == pytest.approx(integral(lambda e: float(model(e))), rel=1e-11)
+    assert w @ np.log(nodes) == pytest.approx(
+        integral(lambda e: float(model(e)) * np.log(e)), rel=1e-11)
+    assert np.all(w >= 0)
+
+
 def test_bad_parameters_are_named() -> None:
     with pytest.raises(ParameterError, match=r"PowerLaw\.K"):
         PowerLaw(-1.0, -2.0)

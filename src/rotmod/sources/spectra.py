@@ -5,13 +5,14 @@ A point source of spectrum ``dN/dE`` (photons cm^-2 s^-1 keV^-1) at instrument z
 
     mu[d, t, c] = T[d, t] sum_e F_e  (pi R^2 cos theta)  P_d(t; E_e)  M(theta; E_e -> c),
 
-with ``F_e`` the photons cm^-2 s^-1 of true-energy bin ``e`` (the model's exact bin integral),
+with ``F_e`` the photons cm^-2 s^-1 attributed to node energy ``E_e``
+(:meth:`rotmod.spectral.SpectralModel.node_weights`: the photons between two nodes split
+between them as a response linear in ``ln E`` would count them),
 ``pi R^2 cos theta`` the face's projected area, which turns the response's sky unit (photons
 per second on one unobstructed face, docs/conventions.md) into a photon flux, ``P_d(t; E)``
 the response's column at energy ``E`` (the slats' and the detector's attenuation change with
 energy; for a thick detector ``P`` counts interactions), and ``M`` the detector's
-redistribution given an interaction (:mod:`rotmod.spectral.detector`).  The columns and the
-redistribution are both evaluated at the bin's node energy.
+redistribution given an interaction (:mod:`rotmod.spectral.detector`).
 
 :func:`fit_spectra` fits every source's spectral parameters at once with a background level
 per detector and channel (constant over the mask-angle bins), fitted, not given: for each
@@ -21,8 +22,9 @@ trial of the spectral parameters the backgrounds are profiled out exactly
 
 Approximations, stated: the redistribution of a detector is the one of a uniformly lit face
 (the mask's shadow changes which part of the crystal is lit, which changes the escape
-probabilities slightly); the redistribution and the columns are constant within a true-energy
-bin (make the bins narrower than the resolution).
+probabilities slightly); between nodes the columns and the redistribution are taken as linear
+in ``ln E`` (keep the nodes closer than the resolution's FWHM; docs/spectra.md measures the
+effect of the spacing).
 """
 
 from __future__ import annotations
@@ -62,9 +64,8 @@ class SpectralColumns:
         energy (the response's column times the face's projected area).
     redistribution : ndarray, shape (n_src, n_e, n_c)
         The detector's redistribution at each source's zenith angle.
-    energy_edges : ndarray, shape (n_e + 1,)
-        True-energy bins (keV) around the nodes
-        (:attr:`rotmod.spectral.detector.DetectorResponse.energy_edges`).
+    energies : ndarray, shape (n_e,)
+        The node energies (keV).
     channel_edges : ndarray, shape (n_c + 1,)
     theta : ndarray, shape (n_src,)
         Zenith angles (deg).
@@ -72,7 +73,7 @@ class SpectralColumns:
 
     columns: np.ndarray
     redistribution: np.ndarray
-    energy_edges: np.ndarray
+    energies: np.ndarray
     channel_edges: np.ndarray
     theta: np.ndarray
 
@@ -83,7 +84,7 @@ class SpectralColumns:
 
     def rates(self, k: int, model: SpectralModel) -> np.ndarray:
         """Counts per second ``(n_det, n_time, n_c)`` of source ``k`` with spectrum ``model``."""
-        flux = model.integral(self.energy_edges[:-1], self.energy_edges[1:])
+        flux = model.node_weights(self.energies)
         n_det, n_t, n_c = self.shape
         # sum_e F_e col[e, d, t] M[e, c], as one (n_det n_t, n_e) x (n_e, n_c) product.
         m = flux[:, None] * self.redistribution[k]
@@ -133,7 +134,8 @@ def spectral_columns(
     _check_energy_dependence(spec.instrument, detector_response)
     det = spec.instrument.detectors
     nodes = np.asarray(detector_response.energies, dtype=float)
-    edges = detector_response.energy_edges
+    if nodes.size < 2:
+        raise ParameterError("detector_response must be tabulated at two or more energies")
     theta = np.degrees(position_grid(spec.grid, positions).directions()[0].value)
     n_det, n_t = response.n_det, response.n_time
     check_memory(8.0 * theta.size * nodes.size * n_det * n_t,
@@ -156,7 +158,7 @@ def spectral_columns(
             raise ParameterError("transmission must lie in [0, 1] (a fraction of photons)")
         cols *= trans[:, :, None, None]
     red = detector_response.matrix_at(theta)
-    return SpectralColumns(cols, red, edges,
+    return SpectralColumns(cols, red, nodes,
                            np.asarray(detector_response.channel_edges, dtype=float), theta)
 
 

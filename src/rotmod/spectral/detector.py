@@ -512,9 +512,10 @@ class DetectorResponse:
     @property
     def energy_edges(self) -> np.ndarray:
         """True-energy bins around the nodes :attr:`energies`: the geometric midpoints, the
-        outer edges as far (in log) beyond the end nodes as the nearest midpoints.  A
-        spectrum's photons in bin ``i`` are counted with the response at node ``i`` (keep
-        the nodes closer than the resolution's FWHM: docs/spectra.md measures the bias)."""
+        outer edges as far (in log) beyond the end nodes as the nearest midpoints: where a
+        diffuse background's photons in bin ``i`` are counted with the response at node ``i``
+        (:mod:`rotmod.spectral.background`; a source's spectrum is split between nodes,
+        :meth:`rotmod.spectral.SpectralModel.node_weights`)."""
         if self.energies.size < 2:
             raise ParameterError("a detector response needs two or more energies for bins")
         ln = np.log(self.energies)

@@ -70,9 +70,9 @@ __all__ = [
 CXB_RANGE_KEV = (3.0, 1.0e8)
 #: Energies (keV) of Mizuno et al. (2004)'s atmospheric gamma-ray model: 30 keV to 100 GeV.
 MIZUNO_RANGE_KEV = (30.0, 1.0e8)
-#: Atmospheric depth (g/cm^2) at which the Mizuno et al. (2004) balloon model applies: the
-#: GLAST balloon flight engineering model's float depth, 3.8 g/cm^2 (*recalled, not read in
-#: the paper here: check Mizuno et al. 2004, Sect. 2, before relying on it*; a parameter).
+#: Atmospheric depth (g/cm^2) at which the Mizuno et al. (2004) balloon model applies.  The
+#: GLAST balloon flight engineering model's float depth, 3.8 g/cm^2, is recalled, not read in
+#: the paper here: check Mizuno et al. 2004, Sect. 2, before relying on it (a parameter).
 MIZUNO_DEPTH = 3.8
 #: 511 keV line at 3.8 g/cm^2 (Mizuno et al. 2004): vertically downward and vertically
 #: upward intensities, photons cm^-2 s^-1 sr^-1 (70.5 and 470 per m^2).

@@ -20,7 +20,7 @@ SRC = Path(rotmod.__file__).resolve().parent
 SHARED_PRIVATE = {"rotmod._validate", "rotmod._deps",
                   # One random number generator for every numba kernel (Monte Carlo of the
                   # instrument and of the detectors' energy response).
-                  "rotmod.montecarlo._rng"}
+                  "rotmod._rng"}
 #: The only imports of rotmod modules inside functions: a lower-layer class that offers
 #: ``.read``/``.write`` delegating to the file layer (rotmod.io), which builds on it (at module
 #: level each would be a cycle; inside the method it runs after both modules are loaded), and
@@ -43,7 +43,8 @@ LAZY_DELEGATIONS = {
 #: (``"rotmod"`` is the package's own ``__init__``, which re-exports the instrument and the
 #: profile models).  Within a layer, the cycle tests keep the arrows one way.
 LAYERS: list[tuple[str, set[str]]] = [
-    ("rules", {"errors", "conventions", "_validate", "_deps", "limits", "registry", "binning",
+    ("rules", {"errors", "conventions", "_validate", "_deps", "_rng", "limits", "registry",
+               "binning",
                "progress",
                "energy"}),
     ("instrument", {"materials", "geometry", "config"}),

@@ -11,8 +11,8 @@ from numba import njit
 from scipy import stats
 
 from rotmod import DetectorArray, Instrument, Mask, Material, ParameterError, get_model
+from rotmod._rng import chunk_states, poisson, seed_sequence
 from rotmod.montecarlo import chord_lengths, simulate_profiles
-from rotmod.montecarlo._rng import chunk_states, poisson, seed_sequence
 from rotmod.paper.validation import chi_square, get_scenario
 from rotmod.profiles import MODELS, ExactModel
 from rotmod.sky import PointSources

@@ -15,7 +15,7 @@ angle and source, with binomial errors) and :func:`simulate_observation` (a time
 :class:`~rotmod.events.EventList` of a rotating mask).
 """
 
-from rotmod.montecarlo._rng import seed_sequence
+from rotmod._rng import seed_sequence
 from rotmod.montecarlo.simulate import (
     MCProfiles,
     chord_lengths,

@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from rotmod.montecarlo._rng import next_double, poisson
+from rotmod._rng import next_double, poisson
 
 __all__ = ["slat_chord"]
 

@@ -11,6 +11,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
+from rotmod._rng import chunk_states, seed_sequence
 from rotmod._validate import (
     as_angle,
     as_angle_scalar,
@@ -26,7 +27,6 @@ from rotmod.events import EventList, check_gti
 from rotmod.geometry import Instrument, disc_flux
 from rotmod.limits import check_memory
 from rotmod.montecarlo import _transport as tr
-from rotmod.montecarlo._rng import chunk_states, seed_sequence
 from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.sky.sources import PointSources
 

@@ -11,7 +11,7 @@ photoelectric, pair as linear coefficients in 1/cm, then per fluorescing element
 cumulative probability that a photoabsorption emits a K x-ray of that element) and
 interpolated linearly in ``ln E``.
 
-Random numbers: the Monte Carlo's xoshiro256+ (:mod:`rotmod.montecarlo._rng`), one state per
+Random numbers: the Monte Carlo's xoshiro256+ (:mod:`rotmod._rng`), one state per
 chunk, seeded from :class:`numpy.random.SeedSequence` children, so results depend on the seed
 and the chunking but not on the threads.
 """
@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from rotmod.montecarlo._rng import next_double as _u01
+from rotmod._rng import next_double as _u01
 
 #: Electron rest energy (keV), CODATA 2018.
 ME_KEV = 510.99895

@@ -47,13 +47,12 @@ import astropy.units as u
 import numpy as np
 from scipy.special import ndtr
 
+from rotmod._rng import chunk_states, seed_sequence
 from rotmod._validate import as_angle, as_angle_scalar, as_array, as_energy, as_int, as_scalar
 from rotmod.energy import FWHM_PER_SIGMA, EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray
 from rotmod.materials import DATABASE_RANGE_KEV, mass_fractions, partial_attenuation
-from rotmod.montecarlo import seed_sequence
-from rotmod.montecarlo._rng import chunk_states
 from rotmod.spectral import _detector_kernels as _k
 
 __all__ = [

@@ -4,7 +4,9 @@
 53 bits of each output make a uniform double in [0, 1).  Each parallel chunk of the Monte
 Carlo owns one state, seeded from :class:`numpy.random.SeedSequence` children
 (:func:`chunk_states`), so results depend on the seed and the chunking but not on the number
-of threads or their scheduling.
+of threads or their scheduling.  The detectors' energy-response Monte Carlo
+(:mod:`rotmod.spectral.detector`) draws from the same generator, which is why it lives with
+the rules rather than inside :mod:`rotmod.montecarlo`.
 
 The Poisson sampler is numpy's: multiplication (inversion) for ``lam < 10`` and Hörmann's
 PTRS transformed rejection for ``lam >= 10`` (W. Hörmann, Insurance: Mathematics and

@@ -45,7 +45,7 @@ from rotmod.response.operator import ResponseOperator
 from rotmod.sources.likelihood import Groups, maximise
 from rotmod.spectral.detector import DetectorResponse
 from rotmod.spectral.models import SpectralModel
-from rotmod.spectral.spectrum import minimise_statistic
+from rotmod.spectral.spectrum import check_edges, minimise_statistic
 
 __all__ = [
     "SourceSpectraFit", "SpectralColumns", "expected_counts", "fit_spectra", "fold_channels",
@@ -364,9 +364,7 @@ def fold_channels(events: EventList, time_bins: Any, channel_edges: Any
     Channel ``c`` takes ``channel_edges[c] <= ENERGY < channel_edges[c + 1]`` (half-open, so
     an event on an inner edge is counted once).
     """
-    edges = np.asarray(channel_edges, dtype=float)
-    if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0) or edges[0] < 0:
-        raise ParameterError("channel_edges must be at least two increasing energies >= 0 keV")
+    edges = check_edges(channel_edges, "channel_edges")
     folded = [fold(events, time_bins, energy_band=(lo, np.nextafter(hi, -np.inf)))
               for lo, hi in itertools.pairwise(edges)]
     return np.stack([f.counts for f in folded], axis=2), folded[0].exposure

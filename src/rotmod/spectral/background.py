@@ -47,6 +47,7 @@ from rotmod.geometry import DetectorArray, Mask
 from rotmod.spectral.atmosphere import Atmosphere
 from rotmod.spectral.detector import DetectorResponse
 from rotmod.spectral.models import SpectralModel
+from rotmod.spectral.spectrum import check_edges
 
 __all__ = [
     "ANNIHILATION_DOWN",
@@ -375,9 +376,9 @@ def internal_rates(model: SpectralModel, channel_edges: Any) -> np.ndarray:
     resolution): counts s^-1 per channel."""
     if not isinstance(model, SpectralModel):
         raise ParameterError(f"model must be a SpectralModel, got {type(model).__name__}")
-    ch = as_array(channel_edges, "channel_edges", lo=0.0, lo_open=True, ndim=1)
-    if ch.size < 2 or np.any(np.diff(ch) <= 0):
-        raise ParameterError("channel_edges must be >= 2 strictly increasing energies (keV)")
+    ch = check_edges(channel_edges, "channel_edges")
+    if ch[0] <= 0:  # a spectrum's integral starts above 0 keV
+        raise ParameterError(f"channel_edges must start above 0 keV, got {ch[0]:g}")
     return model.integral(ch[:-1], ch[1:])
 
 

@@ -48,12 +48,13 @@ import numpy as np
 from scipy.special import ndtr
 
 from rotmod._rng import chunk_states, seed_sequence
-from rotmod._validate import as_angle, as_angle_scalar, as_array, as_energy, as_int, as_scalar
+from rotmod._validate import as_angle, as_angle_scalar, as_energy, as_int, as_scalar
 from rotmod.energy import FWHM_PER_SIGMA, EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray
 from rotmod.materials import DATABASE_RANGE_KEV, mass_fractions, partial_attenuation
 from rotmod.spectral import _detector_kernels as _k
+from rotmod.spectral.spectrum import check_edges
 
 __all__ = [
     "ENERGY_RANGE_KEV",
@@ -333,19 +334,9 @@ class DepositSpectrum:
         numpy.ndarray
             Shape ``(n_ch,)``; sums to at most 1.
         """
-        ch = _channel_edges(channel_edges)
+        ch = check_edges(channel_edges, "channel_edges")
         return _fold(self.centres, self.continuum, self.energy, self.full_energy, ch,
                      resolution)
-
-
-def _channel_edges(channel_edges: Any) -> np.ndarray:
-    ch = as_array(channel_edges, "channel_edges", lo=0.0, ndim=1)
-    if ch.size < 2 or np.any(np.diff(ch) <= 0):
-        raise ParameterError(
-            f"channel_edges must be >= 2 strictly increasing energies (keV), got {ch.size} "
-            "values" + ("" if ch.size < 2 else " that do not increase")
-        )
-    return ch
 
 
 def _fold(centres: np.ndarray, cont: np.ndarray, energy: float, full: float, ch: np.ndarray,
@@ -602,7 +593,7 @@ def tabulate_response(
     ang = np.degrees(as_angle(angles, "angles", lo=0.0, hi=90.0, hi_open=True, ndim=1))
     if np.any(np.diff(ang) <= 0):
         raise ParameterError("angles must increase strictly")
-    ch = _channel_edges(channel_edges)
+    ch = check_edges(channel_edges, "channel_edges")
     if resolution is not None and not isinstance(resolution, EnergyResolution):
         raise ParameterError(
             f"resolution must be an EnergyResolution or None, got {type(resolution).__name__}"

@@ -36,12 +36,18 @@ from rotmod.spectral.models import SpectralModel
 
 __all__ = [
     "CountsSpectrum", "SpectralFit", "SpectralResponse", "StatisticMinimum", "cash",
-    "fit_spectrum", "minimise_statistic", "wstat",
+    "check_edges", "fit_spectrum", "minimise_statistic", "wstat",
 ]
 
 
-def _edges(values: Any, name: str) -> np.ndarray:
-    e = np.asarray(values, dtype=float)
+def check_edges(values: Any, name: str) -> np.ndarray:
+    """Energy bin edges (keV) as a float array: at least two finite, strictly increasing
+    values >= 0, or a ParameterError naming ``name`` (every channel and energy grid of the
+    spectral code is checked here)."""
+    try:
+        e = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        e = np.array([np.nan])
     if e.ndim != 1 or e.size < 2 or not np.all(np.isfinite(e)) or np.any(np.diff(e) <= 0):
         raise ParameterError(f"{name} must be at least two finite, increasing values (keV)")
     if e[0] < 0:
@@ -72,10 +78,10 @@ class SpectralResponse:
     area: np.ndarray
 
     def __post_init__(self) -> None:
-        ee = _edges(self.energy_edges, "energy_edges")
+        ee = check_edges(self.energy_edges, "energy_edges")
         if not ee[0] > 0:
             raise ParameterError("energy_edges must start above 0 keV")
-        ce = _edges(self.channel_edges, "channel_edges")
+        ce = check_edges(self.channel_edges, "channel_edges")
         m = np.asarray(self.matrix, dtype=float)
         a = np.asarray(self.area, dtype=float)
         if m.shape != (ee.size - 1, ce.size - 1):

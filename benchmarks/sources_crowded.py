@@ -70,7 +70,8 @@ from rotmod.response import build_response
 from rotmod.response.columns import columns_at
 from rotmod.sky import SkyGrid
 from rotmod.sources import PointSource, SkyModel, SourceFitter, detect, ts_map
-from rotmod.sources.fitting import fit_with
+from rotmod.sources.detection import confusion_noise
+from rotmod.sources.fitting import fit_with, geometric_scale
 from rotmod.sources.tsmap import null_state, scan_test_source
 
 # The module (the package binds the name ``detect`` to the function).
@@ -316,6 +317,7 @@ def run_seed(seed: int, n_sources: int, response, args) -> dict:
                     "oracle_flux": float(ofit.model.sources[k[0]].flux) if k.size else None})
     catalogue = [{"theta": float(cat_pos[j, 0]), "phi": float(cat_pos[j, 1]),
                   "flux": float(cat[j].flux), "ts": float(res.ts[j]), "r90": float(r90[j]),
+                  "ts_conf": float(det.ts_confused[j]),
                   "false": bool(false[j]), "near_any_true": bool(near_any[j].any()),
                   "nearest_true": float(sep_ct[j].min()),
                   "nearest_true_snr": float(snr[np.argmin(sep_ct[j])]),
@@ -329,7 +331,10 @@ def run_seed(seed: int, n_sources: int, response, args) -> dict:
            "calls": steps.calls, "t_oracle": t_oracle, "n_oracle": int(strong.size),
            "loglike": ll, "sources": src, "catalogue": catalogue, "history": history,
            "oracle_peaks": oracle_peaks, "residual_peaks": residual_peaks,
-           "first_peaks": first_peaks, "background": background.tolist()}
+           "first_peaks": first_peaks, "background": background.tolist(),
+           "confusion": det.confusion,
+           "oracle_confusion": confusion_noise(omap, ofit.model.sources,
+                                               np.degrees(2.0 * geometric_scale(response)))}
     if args.figure and seed == args.seeds[0]:
         out["_maps"] = (det.first_map.ts, det.ts_map.ts, omap.ts)
     if args.naive and seed == args.seeds[0] and n_sources == args.densities[0]:
@@ -475,6 +480,12 @@ def summarise(runs: list[dict], args) -> dict:
             "false_sep": [c["nearest_real"] for c in cat if c["false"]],
             "sum_snr2": float(sum(s["snr"] ** 2 for s in r["sources"])),
             "loglike": r["loglike"],
+            "confusion": r.get("confusion", np.nan),
+            "oracle_confusion": r.get("oracle_confusion", np.nan),
+            "false25_conf": sum(c["false"] and c.get("ts_conf", np.nan) >= 25 for c in cat),
+            "false100_conf": sum(c["false"] and c.get("ts_conf", np.nan) >= 100 for c in cat),
+            "real_below_conf": sum((not c["false"]) and c.get("ts_conf", np.nan) < 25
+                                   for c in cat),
         })
     return {"bins": rows, "per_seed": per_seed}
 
@@ -549,6 +560,12 @@ def report(results: dict, args, load: tuple[float, ...],
                 f"{p['t_localise']:.0f} |")
         t = np.array([p["t_detect"] for p in summary["per_seed"]])
         log(f"\ndetection loop: median {np.median(t):.0f} s (range {t.min():.0f}-{t.max():.0f} s)")
+        log("\n| seed | confusion sigma_c: detect / oracle residual | false TS_CONF >= 25 "
+            "(>= 100) | real sources with TS_CONF < 25 |")
+        log("|---|---|---:|---:|")
+        for p in summary["per_seed"]:
+            log(f"| {p['seed']} | {p['confusion']:.2f} / {p['oracle_confusion']:.2f} | "
+                f"{p['false25_conf']} ({p['false100_conf']}) | {p['real_below_conf']} |")
     sp = results.get("speed")
     if sp:
         log(f"\n| TS map, {sp['pixels']} px x {sp['bins']} bins | time (s) | naive / this |")

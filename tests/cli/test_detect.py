@@ -92,6 +92,27 @@ def test_detect_finds_the_injected_source(detected) -> None:
     assert residual.grid == first.grid and residual.grid.kind == "celestial"
 
 
+def test_screened_maps_find_the_same_catalogue(detected) -> None:
+    """``--exact-above`` below the seed threshold (12.5): every peak the search reads is the
+    likelihood's, so the catalogue is the one found with every pixel exact."""
+    folder, _ = detected
+    code, err = run("detect", folder / "ev.fits", *GRID, "-o", folder / "screened.fits",
+                    "--exact-above", 10, "--first-map", folder / "first_screened.fits",
+                    "--no-progress")
+    assert code == 0, err
+    full, screened = read_catalogue(folder / "cat.fits"), read_catalogue(folder /
+                                                                          "screened.fits")
+    assert screened.names == full.names
+    for col in ("TS", "FLUX", "R90"):
+        np.testing.assert_allclose(screened.table[col], full.table[col], rtol=1e-9)
+    first = read_ts_map(folder / "first_screened.fits")
+    exact = first.exact
+    assert exact is not None and 0 < exact.sum() < exact.size
+    ref = read_ts_map(folder / "first.fits").maps["TS"]
+    np.testing.assert_array_equal(first.maps["TS"][exact], ref[exact])
+    assert np.all(exact[ref >= 10])
+
+
 def test_detect_regions_read_back_in_ds9_and_healpy(detected) -> None:
     folder, _ = detected
     cat = read_catalogue(folder / "cat.fits")

@@ -8,6 +8,8 @@ Gaussian of known widths, so that their areas are known in closed form.
 
 from __future__ import annotations
 
+import dataclasses
+
 import astropy.units as u
 import numpy as np
 import pytest
@@ -83,6 +85,15 @@ def test_catalogue_round_trips_with_units_and_seeds_a_model(results, tmp_path, e
     assert not any(s.free_position for s in model.sources)
     assert model.background is None  # a fit starts the background from the counts
     assert all(s.free_position for s in read_sky_model(cat, free_positions=True).sources)
+
+
+@pytest.mark.parametrize("ext", [".fits", ".ecsv"])
+def test_a_detection_writes_its_confusion_noise(results, tmp_path, ext) -> None:
+    det = dataclasses.replace(results["detection"], confusion=1.5)
+    t = Table.read(rio.write(det, tmp_path / f"cat{ext}"))
+    assert t.meta["CONFUSN"] == 1.5
+    np.testing.assert_allclose(t["TS_CONF"], det.result.ts / 3.25, rtol=1e-15)
+    np.testing.assert_allclose(det.ts_confused, det.result.ts / 3.25, rtol=1e-15)
 
 
 def test_gammapy_reads_positions_and_names(results, tmp_path) -> None:
@@ -229,6 +240,18 @@ def test_ts_maps_round_trip_in_their_grid_form(results, tmp_path, kind) -> None:
             corners = ([0, nx - 1, 0, nx - 1], [0, 0, ny - 1, ny - 1])
             np.testing.assert_allclose(back.wcs.celestial.all_pix2world(*corners, 0),
                                        ts_map.grid.wcs().all_pix2world(*corners, 0))
+
+
+@pytest.mark.parametrize("kind", ["instrument map", "healpix map"])
+def test_a_screened_map_keeps_which_pixels_are_exact(results, tmp_path, kind) -> None:
+    ts_map = results[kind]
+    exact = np.zeros(ts_map.grid.shape, dtype=bool)
+    exact.ravel()[::3] = True
+    screened = dataclasses.replace(ts_map, exact=exact, exact_above=25.0, screen_cut=19.5)
+    back = rio.read(rio.write(screened, tmp_path / "ts.fits"))
+    np.testing.assert_array_equal(back.exact, exact)
+    assert (back.header["EXACTAB"], back.header["SCRNCUT"]) == (25.0, 19.5)
+    assert rio.read(rio.write(ts_map, tmp_path / "all.fits")).exact is None
 
 
 def test_healpix_ts_maps_read_in_healpy(results, tmp_path) -> None:

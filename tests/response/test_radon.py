@@ -15,7 +15,7 @@ from rotmod.io import load_instrument
 from rotmod.limits import MemoryBudgetError
 from rotmod.profiles import get_model
 from rotmod.reconstruction import reconstruct
-from rotmod.response import RadonResponse, TimeBinning, build_response
+from rotmod.response import MatrixFreeResponse, RadonResponse, TimeBinning, build_response
 from rotmod.sky import SkyGrid
 from rotmod.testing import dot_test
 
@@ -241,3 +241,37 @@ def test_columns_are_the_materialised_values() -> None:
         radon.columns([120])
     with pytest.raises(ParameterError, match="pixels must be integer indices"):
         radon.columns([1.5])
+
+
+@pytest.mark.parametrize("name", ["prototype-662", "thick-wide", "prototype-122-average"])
+def test_adjoint_squared_is_the_adjoint_of_the_squared_values(name) -> None:
+    radon = _radon(name)
+    m = radon.materialise()
+    y = np.random.default_rng(5).random((radon.n_det, radon.n_time))
+    ref = np.einsum("dtn,dt->n", m.matrix**2, y)
+    # The default (a pass over the blocks of the held values) is the definition.
+    np.testing.assert_allclose(m.adjoint_squared(y), ref, rtol=1e-13)
+    sq = radon.adjoint_squared(y)
+    if radon.time_bins.n_sub == 1:
+        # The squared table: its interpolation and the square of the table's interpolation
+        # agree to the interpolation's order (relative error below the tolerance, 1e-4).
+        np.testing.assert_allclose(sq, ref, rtol=radon.tolerance)
+    else:
+        # Bins averaged over sub-samples: the mean of their squares, never below the square
+        # of their mean (less the interpolation's error).
+        assert np.all(sq >= ref * (1.0 - radon.tolerance))
+        assert np.any(sq > ref * (1.0 + 10.0 * radon.tolerance))
+
+
+def test_columns_of_any_operator_are_its_values() -> None:
+    inst, grid, tb, energy = CASES["thick-wide"]
+    free = MatrixFreeResponse(inst, grid, tb, "exact", energy, dtype=np.float64)
+    pix = [5, 0, 17]
+    # A block per pixel against one block of all: the same model, batched differently
+    # (rounding of vectorised sums, ~1e-14).
+    np.testing.assert_allclose(free.columns(pix), free.materialise().matrix[:, :, pix],
+                               rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(free.materialise().columns(pix),
+                                  free.materialise().matrix[:, :, pix])
+    with pytest.raises(ParameterError, match="pixels"):
+        free.columns([grid.size])

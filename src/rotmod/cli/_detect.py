@@ -72,6 +72,10 @@ def register(sub: Any) -> None:
                    "default 0)")
     p.add_argument("--ul-confidence", type=float, default=0.95, metavar="CL",
                    help="confidence of the flux upper limits (default 0.95)")
+    p.add_argument("--exact-above", type=float, default=None, metavar="TS",
+                   help="screen every TS map with the score test (three sky-wide products) "
+                   "and compute the likelihood ratio only where TS nears TS: minutes instead "
+                   "of hours for 10^6-pixel fields (default: every pixel exact)")
     p.add_argument("--catalogue-in", default=None, metavar="FILE",
                    help="known sources to start from (a catalogue, FITS or ECSV, with RA/DEC "
                    "or THETA/PHI columns): kept and refitted")
@@ -159,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
         f"{response.n_sky} pixels ({response.grid.kind} grid), threshold TS "
         f"{args.threshold:g}{f', {n_known} known source(s)' if n_known else ''}")
     kw = {"model": model, "threshold": args.threshold, "max_sources": args.max_sources,
-          "systematic": args.systematic, "ul_confidence": args.ul_confidence}
+          "systematic": args.systematic, "ul_confidence": args.ul_confidence,
+          "exact_above": args.exact_above}
     if progress_wanted(args):
         with Progress(None, "detect: TS maps", "pixel", tty=sys.stderr.isatty()) as bar:
             det = detect(response, folded, progress=_pixel_counter(bar), **kw)
@@ -179,6 +184,9 @@ def run(args: argparse.Namespace) -> int:
         + (f" (and {n_known} known)" if n_known else ""))
     for k in range(len(det.sources)):
         say(_describe(det, k))
+    if np.isfinite(det.confusion):
+        say(f"rotmod: confusion noise {det.confusion:.2f} sigma on the residual map "
+            f"(catalogue column TS_CONF = TS / {1 + det.confusion**2:.3g})")
     provenance = {"command": args.command_line}
     meta = {"data": str(data_path), **({"response": str(args.response)}
                                        if args.response else {})}

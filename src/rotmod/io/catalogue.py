@@ -17,6 +17,8 @@ column                 unit   meaning
 ``SYS_ERR``            deg    systematic position error per axis folded into the region
 ``TS``, ``SQRT_TS``           test statistic of the source and its square root (sigma at a
                               fixed position)
+``TS_CONF``                   ``TS / (1 + CONFUSN^2)``: the TS with the field's confusion
+                              noise counted (a detection's catalogue only)
 ``FLUX``               1/s    photons per second on one unmasked detector face (the
                               response's sky unit)
 ``FLUX_ERRN/ERRP``     1/s    profile-likelihood 1-sigma errors below / above ``FLUX``
@@ -24,8 +26,10 @@ column                 unit   meaning
 =====================  =====  =================================================================
 
 The header (ECSV: the metadata) holds ``UL_CONF``, the detection threshold ``THRESH`` (a TS)
-when a detection made the catalogue, ``SKYFRAME`` (``celestial`` or ``instrument``),
-``RADESYS = 'ICRS'`` for sky positions and the provenance cards
+and the confusion noise ``CONFUSN`` (:func:`rotmod.sources.detection.confusion_noise`, in
+units of the statistical sigma) when a detection made the catalogue, ``SKYFRAME``
+(``celestial`` or ``instrument``), ``RADESYS = 'ICRS'`` for sky positions and the
+provenance cards
 (:mod:`rotmod.io.provenance`).  The position columns are those gammapy's catalogues take
 (``RA``/``DEC``), and ``NAME`` is the source-name key to give them.
 
@@ -71,6 +75,7 @@ RADII = {"R68": 0.68, "R90": 0.90}
 CARD_COMMENTS = {
     "UL_CONF": "confidence of the flux upper limits FLUX_UL",
     "THRESH": "TS a source had to reach to be detected",
+    "CONFUSN": "confusion sigma: TS_CONF = TS/(1+CONFUSN^2)",
     "SKYFRAME": "positions: celestial (RA/DEC) or instrument (THETA/PHI)",
     "RADESYS": "frame of RA/DEC",
     "FLUXDEF": "FLUX: photons/s on one unmasked detector face",
@@ -131,7 +136,8 @@ def _position_columns(source: Any) -> dict[str, np.ndarray]:
 
 
 def catalogue_table(result: FitResult, regions: Sequence[Region | None] | None = None, *,
-                    threshold: float | None = None, frame: str | None = None) -> Table:
+                    threshold: float | None = None, frame: str | None = None,
+                    confusion: float | None = None) -> Table:
     """The catalogue of a fit as an astropy table (module notes for the columns).
 
     Parameters
@@ -144,6 +150,9 @@ def catalogue_table(result: FitResult, regions: Sequence[Region | None] | None =
         The detection threshold (TS), for the ``THRESH`` card.
     frame : {"celestial", "instrument"}, optional
         Frame of the position columns; required only when ``result`` has no sources.
+    confusion : float, optional
+        The field's confusion noise (``CONFUSN``, and the ``TS_CONF`` column); NaN or
+        ``None``: not measured.
 
     Raises
     ------
@@ -178,6 +187,9 @@ def catalogue_table(result: FitResult, regions: Sequence[Region | None] | None =
     ts = np.asarray(result.ts, dtype=float).reshape(n)
     t["TS"] = ts
     t["SQRT_TS"] = np.sqrt(np.maximum(ts, 0.0))  # NaN stays NaN: not computed
+    if confusion is not None and np.isfinite(confusion):
+        t["TS_CONF"] = ts / (1.0 + float(confusion) ** 2)
+        t.meta["CONFUSN"] = float(confusion)
     err = np.asarray(result.flux_err, dtype=float).reshape(n, 2)
     t["FLUX"] = np.array([s.flux for s in sources], dtype=float) * FLUX_UNIT
     t["FLUX_ERRN"] = err[:, 0] * FLUX_UNIT
@@ -196,8 +208,9 @@ def catalogue_table(result: FitResult, regions: Sequence[Region | None] | None =
 def write_catalogue(
     result: FitResult, path: str | os.PathLike, *,
     regions: Sequence[Region | None] | None = None, threshold: float | None = None,
-    frame: str | None = None, overwrite: bool = False, seed: Any = None,
-    command: str | Sequence[str] | None = None, meta: dict[str, Any] | None = None,
+    frame: str | None = None, confusion: float | None = None, overwrite: bool = False,
+    seed: Any = None, command: str | Sequence[str] | None = None,
+    meta: dict[str, Any] | None = None,
 ) -> Path:
     """Write the catalogue of a fit: FITS (``.fits``, ``.fits.gz``) or ECSV (``.ecsv``).
 
@@ -205,7 +218,7 @@ def write_catalogue(
     ----------
     result : FitResult
     path : str or path-like
-    regions, threshold, frame
+    regions, threshold, frame, confusion
         As for :func:`catalogue_table`.
     overwrite : bool
         Replace an existing file (default: refuse).
@@ -223,7 +236,8 @@ def write_catalogue(
         :func:`catalogue_table` refuses.
     """
     product_format(path)  # before any work: the name says FITS or ECSV
-    table = catalogue_table(result, regions, threshold=threshold, frame=frame)
+    table = catalogue_table(result, regions, threshold=threshold, frame=frame,
+                            confusion=confusion)
     return write_product_table(table, path, extname=EXTNAME, overwrite=overwrite, seed=seed,
                                command=command, meta=meta, comments=CARD_COMMENTS)
 
@@ -234,11 +248,12 @@ def write_detection(detection: Detection, path: str | os.PathLike, *, overwrite:
     """Write the catalogue of a detection (its final fit, regions and threshold).
 
     As :func:`write_catalogue`, with the positions in the frame of the detection's grid (so
-    that a detection of no source writes a valid empty catalogue).
+    that a detection of no source writes a valid empty catalogue) and its confusion noise.
     """
     return write_catalogue(detection.result, path, regions=detection.regions,
                            threshold=detection.threshold, frame=detection.ts_map.grid.frame,
-                           overwrite=overwrite, seed=seed, command=command, meta=meta)
+                           confusion=detection.confusion, overwrite=overwrite, seed=seed,
+                           command=command, meta=meta)
 
 
 def _read_table(p: Path) -> Table:

@@ -16,6 +16,10 @@ extension          unit   map
 ``SENSITIVITY``    s-1    flux whose Asimov data set reaches ``TS = SENS_TS``
 =================  =====  ==============================================================
 
+A screened map (``ts_map(..., exact_above=)``) adds ``EXACT`` (1 where a pixel's readings
+are the likelihood's, 0 where they are the score screen's) and the cards ``EXACTAB`` and
+``SCRNCUT`` (its ``exact_above`` and ``screen_cut``).
+
 The primary HDU is empty and carries the provenance cards, ``UL_CONF``, ``SENS_TS`` and the
 grid's description (``GRID``, JSON), from which :func:`read_ts_map` rebuilds the grid.
 Pixels the data cannot see are NaN.  ds9 and astropy open the WCS extensions directly.
@@ -72,6 +76,8 @@ class TSMapFile:
     ul_confidence, sensitivity_ts : float
     header : astropy.io.fits.Header
         The primary header.
+    exact : ndarray of bool or None
+        A screened map's ``EXACT`` (``None``: every pixel exact).
     """
 
     maps: dict[str, np.ndarray]
@@ -80,6 +86,7 @@ class TSMapFile:
     ul_confidence: float
     sensitivity_ts: float
     header: Any
+    exact: np.ndarray | None = None
 
 
 def _map_hdus(grid: SkyGeometry, name: str, values: np.ndarray, unit: str) -> list[Any]:
@@ -139,6 +146,10 @@ def write_ts_map(
             raise ParameterError(f"ts_map.{attr} must have the grid's shape {grid.shape}, got "
                                  f"{values.shape}")
         hdus += _map_hdus(grid, name, values, unit)
+    if ts_map.exact is not None:
+        h["EXACTAB"] = (float(ts_map.exact_above), "screened map: LR exact above this TS")
+        h["SCRNCUT"] = (float(ts_map.screen_cut), "screen TS from which pixels are exact")
+        hdus += _map_hdus(grid, "EXACT", np.asarray(ts_map.exact, dtype=np.uint8), "")
     with atomic_path(p) as tmp:
         fits.HDUList(hdus).writeto(tmp, overwrite=True, checksum=True)
     return p
@@ -163,7 +174,7 @@ def read_ts_map(path: str | os.PathLike) -> TSMapFile:
         if missing:
             raise ParameterError(f"path {str(p)!r} is not a TS-map file: no "
                                  f"{', '.join(missing)} extension")
-        for name in MAPS:
+        for name in [*MAPS, *(["EXACT"] if "EXACT" in hl else [])]:
             hdu = hl[name]
             if isinstance(hdu, fits.ImageHDU):
                 maps[name] = np.array(hdu.data, dtype=float)
@@ -171,5 +182,6 @@ def read_ts_map(path: str | os.PathLike) -> TSMapFile:
             else:
                 maps[name] = image_from_hdus(fits.HDUList([fits.PrimaryHDU(), hdu]), str(p))[0]
     grid = grid_from_dict(json.loads(hdr["GRID"])) if "GRID" in hdr else None
+    exact = maps.pop("EXACT") > 0.5 if "EXACT" in maps else None
     return TSMapFile(maps, grid, wcs, float(hdr.get("UL_CONF", np.nan)),
-                     float(hdr.get("SENS_TS", np.nan)), hdr)
+                     float(hdr.get("SENS_TS", np.nan)), hdr, exact)

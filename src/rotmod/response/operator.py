@@ -19,6 +19,7 @@ import numpy as np
 
 import rotmod
 from rotmod.errors import ParameterError
+from rotmod.limits import check_memory
 from rotmod.profiles.base import ProfileModel
 from rotmod.response._plan import fold_half_turn, repeat_half_turn
 from rotmod.response.parallel import Block, block_grid, block_ranges, iter_blocks
@@ -159,6 +160,75 @@ class ResponseOperator(ABC):
         full = np.zeros((self.n_det, self.n_time), dtype=np.result_type(counts, np.float32))
         full[det] = counts
         return self.adjoint(full)
+
+    def adjoint_squared(self, counts: np.ndarray) -> np.ndarray:
+        """``(P o P)^T Y``: ``sum_{d, t} P[d, t, n]^2 Y[d, t]``, the adjoint of ``P``'s
+        element-wise square.
+
+        With ``Y`` a weight per bin (``1/mu``) this is the Fisher information of a point
+        source's flux in every pixel at once: what a TS map's score screen needs
+        (:func:`rotmod.sources.ts_map` with ``exact_above``).  The default walks the blocks
+        of ``P`` (one pass over its values, distributed as :meth:`materialise` is);
+        operators that can do it without the values replace it.
+
+        Parameters
+        ----------
+        counts : ndarray, shape (n_det, n_time)
+
+        Returns
+        -------
+        ndarray, shape (n_sky,)
+            float64.
+        """
+        y = fold_half_turn(np.asarray(self._check_counts(counts), dtype=np.float64),
+                           self.n_distinct)
+        out = np.zeros(self.n_sky)
+        for _, (_, (n0, n1)), part in iter_blocks(
+                self._source, self._materialise_blocks(), y, reduce=_squared_block,
+                **self._run_options()):
+            out[n0:n1] += part
+        return out
+
+    def _check_pixels(self, pixels: Any) -> np.ndarray:
+        """Pixel indices checked, and the memory of their columns."""
+        idx = np.atleast_1d(np.asarray(pixels))
+        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (
+                idx.size and (idx.min() < 0 or idx.max() >= self.n_sky)):
+            raise ParameterError(f"pixels must be integer indices in [0, {self.n_sky - 1}], "
+                                 f"got {pixels!r}")
+        check_memory(float(self.n_det) * self.n_time * idx.size * self.dtype.itemsize,
+                     f"a response of {self.n_det} x {self.n_time} x {idx.size} values",
+                     hint="ask for fewer pixels at a time")
+        return idx
+
+    def columns(self, pixels: Any) -> np.ndarray:
+        """``P[:, :, pixels]``: the values this operator uses for some sky pixels.
+
+        The default evaluates a :meth:`block` per pixel; operators that hold ``P`` or
+        evaluate it pixel by pixel replace it.
+
+        Parameters
+        ----------
+        pixels : sequence of int
+            Sky pixel indices (flattened grid order).
+
+        Returns
+        -------
+        ndarray, shape (n_det, n_time, len(pixels))
+            In this operator's dtype.
+
+        Raises
+        ------
+        ParameterError
+            Indices that are not integers in ``[0, n_sky)``.
+        MemoryBudgetError
+            If the result does not fit the memory budget.
+        """
+        idx = self._check_pixels(pixels)
+        out = np.empty((self.n_det, self.n_time, idx.size), dtype=self.dtype)
+        for k, pixel in enumerate(idx):
+            out[:, :, k] = self.block(n=(int(pixel), int(pixel) + 1))[:, :, 0]
+        return out
 
     @cached_property
     def _sensitivity(self) -> np.ndarray:
@@ -389,9 +459,20 @@ class MaterialisedResponse(ResponseOperator):
         (t0, t1), (n0, n1) = block_ranges(t, n, self.n_time, self.n_sky)
         return self.matrix[:, t0:t1, n0:n1]
 
+    def columns(self, pixels: Any) -> np.ndarray:
+        """``P[:, :, pixels]`` (a copy of those columns of :attr:`matrix`)."""
+        return self.matrix[:, :, self._check_pixels(pixels)]
+
     def materialise(self) -> MaterialisedResponse:
         """This response (it is in memory already)."""
         return self
+
+
+def _squared_block(p: np.ndarray, block: Block, y: np.ndarray) -> np.ndarray:
+    """``sum_{d, t} P^2 Y`` of one block of ``P`` (the reduce of :meth:`adjoint_squared`'s
+    block walk: on a Dask worker only the block's pixels travel back)."""
+    (t0, t1), _ = block
+    return np.einsum("dtn,dt->n", np.square(p, dtype=np.float64), y[:, t0:t1])
 
 
 def _check_sizes(shape: tuple[int, ...], fields: dict[str, Any]) -> None:

@@ -33,6 +33,7 @@ and the number of ``q`` nodes by the Chebyshev error bound of ``exp(-tau f)``,
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -228,25 +229,42 @@ def _rows_adjoint(tab, y, jx, ax, lo, hi, gg):
 @njit(parallel=True, cache=True)
 def _dense(tab, tx, ty, qw, cos_a, sin_a, k0, inv_dw, jx, ax, n_sub, out):
     """``out[d, t, n]``: every value of the factorised response (the same weights as the
-    products, evaluated one element at a time; for checks and small problems)."""
+    products, evaluated one element at a time; for columns, checks and small problems).
+
+    One task per time bin; a pixel's ``w`` node and its cubic x optical-depth weights are
+    computed once per angle and serve every detector (a dot product of ``4 n_r`` table
+    values per detector and tap)."""
     n_det, n_t, n_pix = out.shape
     n_r = qw.shape[1]
-    for idx in prange(n_det * n_t):
-        d = idx // n_t
-        t = idx % n_t
-        for n in range(n_pix):
-            total = 0.0
-            for sub in range(n_sub):
-                a = t * n_sub + sub
-                i, b0, b1, b2, b3 = _node(tx[n], ty[n], cos_a[a], sin_a[a], k0, inv_dw, total)
-                b = (b0, b1, b2, b3)
-                for tap in range(jx.shape[2]):
-                    row = tab[jx[d, a, tap]]
-                    for m in range(4):
-                        k = (i - 1 + m) * n_r
-                        for r in range(n_r):
-                            total += ax[d, a, tap] * b[m] * qw[n, r] * row[k + r]
-            out[d, t, n] = total
+    n_taps = jx.shape[2]
+    for t in prange(n_t):
+        acc = np.zeros((n_det, n_pix))
+        wts = np.empty(4 * n_r)
+        for sub in range(n_sub):
+            a = t * n_sub + sub
+            c = cos_a[a]
+            s = sin_a[a]
+            for n in range(n_pix):
+                i, b0, b1, b2, b3 = _node(tx[n], ty[n], c, s, k0, inv_dw, 0.0)
+                for r in range(n_r):
+                    q = qw[n, r]
+                    wts[r] = b0 * q
+                    wts[n_r + r] = b1 * q
+                    wts[2 * n_r + r] = b2 * q
+                    wts[3 * n_r + r] = b3 * q
+                base = (i - 1) * n_r
+                for d in range(n_det):
+                    total = 0.0
+                    for tap in range(n_taps):
+                        row = tab[jx[d, a, tap]]
+                        dot = 0.0
+                        for m in range(4 * n_r):
+                            dot += wts[m] * row[base + m]
+                        total += ax[d, a, tap] * dot
+                    acc[d, n] += total
+        for d in range(n_det):
+            for n in range(n_pix):
+                out[d, t, n] = acc[d, n]
 
 
 # --- setup ----------------------------------------------------------------------------------
@@ -602,9 +620,10 @@ class RadonResponse(ResponseOperator):
 
     # -- products --------------------------------------------------------------------------
 
-    def _run(self, func: Any, vec: np.ndarray) -> list[Any]:
+    def _run(self, func: Any, vec: np.ndarray, factors: _Factors | None = None) -> list[Any]:
         parts: list[Any] = [None] * len(self.blocks)
-        for i, res in map_blocks(func, self.blocks, self._factors, vec,
+        factors = self._factors if factors is None else factors
+        for i, res in map_blocks(func, self.blocks, factors, vec,
                                  scheduler=self.scheduler, client=self.client,
                                  progress=self.progress, desc="radon blocks"):
             parts[i] = res
@@ -619,13 +638,42 @@ class RadonResponse(ResponseOperator):
         return repeat_half_turn(out, self.n_distinct).astype(self.dtype, copy=False)
 
     def _adjoint(self, counts: np.ndarray) -> np.ndarray:
+        return self._adjoint_with(self._factors, counts).astype(self.dtype, copy=False)
+
+    def _adjoint_with(self, factors: _Factors, counts: np.ndarray) -> np.ndarray:
         y = fold_half_turn(np.asarray(counts, dtype=np.float64), self.n_distinct)
         acc = np.zeros(self.n_sky)
-        for part in self._run(_adjoint_block, y):
+        for part in self._run(_adjoint_block, y, factors):
             acc += part
         out = np.empty(self.n_sky)
         out[self._perm] = acc
-        return out.astype(self.dtype, copy=False)
+        return out
+
+    def adjoint_squared(self, counts: np.ndarray) -> np.ndarray:
+        """``(P o P)^T Y`` through the squared table (no values of ``P`` formed).
+
+        A value of ``P`` is a weighted sum of table entries (the interpolation), and the
+        same weights on the squared table give its square to the interpolation's order
+        (5e-5 relative at tolerance 1e-3, ``benchmarks/bench_tsmap_wide.py``).  With
+        ``n_sub`` sub-samples per time bin it is the mean of their squares, which exceeds
+        the square of their mean by their variance within the bin.
+
+        Parameters
+        ----------
+        counts : ndarray, shape (n_det, n_time)
+
+        Returns
+        -------
+        ndarray, shape (n_sky,)
+            float64.
+        """
+        y = self._check_counts(counts)
+        return self._adjoint_with(self._squared_factors, y)
+
+    @functools.cached_property
+    def _squared_factors(self) -> _Factors:
+        f = self._factors
+        return dataclasses.replace(f, table=np.square(f.table))
 
     @property
     def table(self) -> np.ndarray:
@@ -633,33 +681,8 @@ class RadonResponse(ResponseOperator):
         return self._factors.table
 
     def columns(self, pixels: Any) -> np.ndarray:
-        """``P[:, :, pixels]``: the values this operator uses for some sky pixels.
-
-        Parameters
-        ----------
-        pixels : sequence of int
-            Sky pixel indices (flattened grid order).
-
-        Returns
-        -------
-        ndarray, shape (n_det, n_time, len(pixels))
-            In this operator's dtype.
-
-        Raises
-        ------
-        ParameterError
-            Indices that are not integers in ``[0, n_sky)``.
-        MemoryBudgetError
-            If the result does not fit the memory budget.
-        """
-        idx = np.atleast_1d(np.asarray(pixels))
-        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (
-                idx.size and (idx.min() < 0 or idx.max() >= self.n_sky)):
-            raise ParameterError(f"pixels must be integer indices in [0, {self.n_sky - 1}], "
-                                 f"got {pixels!r}")
-        check_memory(float(self.n_det) * self.n_time * idx.size * self.dtype.itemsize,
-                     f"a response of {self.n_det} x {self.n_time} x {idx.size} values",
-                     hint="ask for fewer pixels at a time")
+        """``P[:, :, pixels]`` evaluated from the table (:meth:`ResponseOperator.columns`)."""
+        idx = self._check_pixels(pixels)
         f = self._factors
         where = np.empty(self.n_sky, dtype=np.int64)
         where[self._perm] = np.arange(self.n_sky)  # position of each pixel in Z order

@@ -25,6 +25,17 @@ The map maximum is taken over many pixels, so its null distribution is not the f
 ``1/2 chi2_0 + 1/2 chi2_1``: ``benchmarks/sources_calibration.py`` measures it on empty
 fields and ``docs/sources.md`` states the threshold for a given false-detection rate (the
 trials factor).
+
+**Confusion.**  Sources too faint to detect still modulate the counts, and their sidelobes
+cross the whole field: each pixel's significance then has a variance ``1 + sigma_c^2``
+instead of 1, and TS peaks appear where no source is (``docs/sources_crowded.md``).  As
+coded-mask surveys do, the field's noise is measured on the residual map, away from the
+catalogued sources: a pixel's signed significance (``sqrt(TS)``, negative where the flux
+would be) is ``N(0, 1)`` under a complete model, so its 84.13 % quantile, which needs only
+the positive half, estimates the width ``sigma_w``; :func:`confusion_noise` returns
+``sigma_c = sqrt(max(sigma_w^2 - 1, 0))`` and each source's ``TS / (1 + sigma_c^2)`` is its
+TS with the confusion noise counted (the catalogue's ``TS_CONF``).  The estimate has the
+noise of a quantile over the field's independent beams (+-0.22 in ``sigma_w`` for 48 beams).
 """
 
 from __future__ import annotations
@@ -35,15 +46,16 @@ from typing import Any
 import numpy as np
 
 from rotmod._validate import as_angle_scalar
+from rotmod.conventions import source_direction
 from rotmod.errors import ParameterError
 from rotmod.progress import ProgressArg
 from rotmod.response.operator import ResponseOperator
-from rotmod.sources.fitting import FitResult, SourceFitter, fit_with
+from rotmod.sources.fitting import FitResult, SourceFitter, fit_with, geometric_scale
 from rotmod.sources.localisation import Region, localise
 from rotmod.sources.model import PointSource, SkyModel
 from rotmod.sources.tsmap import TSMap, ts_map
 
-__all__ = ["Detection", "detect", "pixel_position"]
+__all__ = ["Detection", "confusion_noise", "detect", "pixel_position"]
 
 
 def pixel_position(response: ResponseOperator, pixel: int) -> Any:
@@ -72,6 +84,11 @@ class Detection:
         The TS map against the background alone (the first step).
     threshold : float
         The TS a map peak had to pass.
+    history : list of dict
+        The search's steps (each candidate tried, each pruned).
+    confusion : float
+        The field's confusion noise ``sigma_c`` on the residual map (:func:`confusion_noise`;
+        NaN when not measured).
     """
 
     result: FitResult
@@ -80,11 +97,62 @@ class Detection:
     first_map: TSMap
     threshold: float
     history: list[dict[str, Any]] = field(default_factory=list)
+    confusion: float = float("nan")
 
     @property
     def sources(self) -> tuple[PointSource, ...]:
         """The detected (and given) sources, fitted."""
         return self.result.model.sources
+
+    @property
+    def ts_confused(self) -> np.ndarray:
+        """Each source's TS with the confusion noise counted: ``TS / (1 + sigma_c^2)``."""
+        c = 0.0 if not np.isfinite(self.confusion) else self.confusion
+        return np.asarray(self.result.ts, dtype=float) / (1.0 + c * c)
+
+
+#: Quantile of a standard normal at +1 sigma.
+_PLUS_ONE_SIGMA = 0.8413447460685429
+
+
+def confusion_noise(ts_map: TSMap, sources: tuple[PointSource, ...] | list[PointSource] = (),
+                    radius: float = 0.0) -> float:
+    """The confusion noise ``sigma_c`` of a residual TS map (module notes).
+
+    Parameters
+    ----------
+    ts_map : TSMap
+        Against a model with the catalogued sources.
+    sources : sequence of PointSource
+        Those sources: pixels within ``radius`` of any are left out (their residuals are
+        fitted away).
+    radius : float
+        Degrees, >= 0.
+
+    Returns
+    -------
+    float
+        ``sqrt(max(sigma_w^2 - 1, 0))``, ``sigma_w`` the 84.13 % quantile of the pixels'
+        signed significance; NaN when fewer than 20 pixels are left.
+    """
+    if not (np.isfinite(radius) and radius >= 0):
+        raise ParameterError(f"radius must be >= 0 deg, got {radius!r}")
+    ts = np.asarray(ts_map.ts, dtype=float).ravel()
+    keep = np.isfinite(ts)
+    if len(sources) and radius > 0:
+        th, ph = ts_map.grid.directions()
+        if ts_map.grid.frame == "celestial":
+            vec = ts_map.grid.attitude.to_sky(th, ph).cartesian.xyz.value.T
+        else:
+            vec = source_direction(th.to_value("rad"), ph.to_value("rad"))
+        near = vec.reshape(-1, 3) @ np.stack([src.vector() for src in sources]).T
+        keep &= ~np.any(near > np.cos(np.radians(radius)), axis=1)
+    if keep.sum() < 20:
+        return float("nan")
+    flux = np.asarray(ts_map.flux, dtype=float).ravel()[keep]
+    signed = np.where((ts[keep] > 0) & (flux > 0), np.sqrt(ts[keep]), -1.0)
+    width = float(np.quantile(signed, _PLUS_ONE_SIGMA))
+    return float(np.sqrt(max(width * width - 1.0, 0.0)))
 
 
 def detect(
@@ -99,6 +167,7 @@ def detect(
     localise_sources: bool = True,
     systematic: Any = 0.0,
     ul_confidence: float = 0.95,
+    exact_above: float | None = None,
     progress: ProgressArg = None,
 ) -> Detection:
     """Find the sources in ``data``: the iterative TS-map search (module notes).
@@ -129,6 +198,11 @@ def detect(
         Systematic position error per axis (deg if plain) folded into the regions.
     ul_confidence : float
         Confidence of the upper limits.
+    exact_above : float, optional
+        Screen each TS map (:func:`~rotmod.sources.ts_map`'s ``exact_above``: the score
+        test everywhere, the likelihood ratio where TS nears this value): what a wide field
+        needs.  At or below ``seed_threshold``, every peak the search reads is exact.
+        Default: every pixel of every map exact.
     progress : bool or callable, optional
         Progress of each TS map.
 
@@ -151,7 +225,7 @@ def detect(
     given = len(model.sources)
     model = fitter.maximise(model)[0]
     first = current = ts_map(response, fitter.data, model, fitter=fitter, progress=progress,
-                             ul_confidence=ul_confidence)
+                             ul_confidence=ul_confidence, exact_above=exact_above)
     history: list[dict[str, Any]] = []
     excluded: set[int] = set()
     added = 0
@@ -189,7 +263,7 @@ def detect(
             model = fitter.fit_positions(model)
         # Read only for its peak: TS only (limits and sensitivity are most of a map's cost).
         current = ts_map(response, fitter.data, model, fitter=fitter, progress=progress,
-                         limits=False)
+                         limits=False, exact_above=exact_above)
     # Prune: the weakest candidate below threshold goes, the rest are refitted, until every
     # found source passes (the sources given are kept whatever their TS).
     while len(model.sources) > given:
@@ -209,9 +283,13 @@ def detect(
     # loop's own maps are TS only).
     kept = any(h.get("added") for h in history)
     final = ts_map(response, fitter.data, result.model, fitter=fitter, progress=progress,
-                   ul_confidence=ul_confidence) if kept else first
+                   ul_confidence=ul_confidence, exact_above=exact_above) if kept else first
     regions: list[Region | None] = [None] * len(result.model.sources)
     if localise_sources:
         regions = [localise(fitter, result.model, k, systematic=systematic)
                    for k in range(len(result.model.sources))]
-    return Detection(result, regions, final, first, float(threshold), history)
+    # The field's confusion noise, away from the catalogued sources (their residuals are
+    # fitted away within about the instrument's angular scale).
+    confusion = confusion_noise(final, result.model.sources,
+                                np.degrees(2.0 * geometric_scale(response)))
+    return Detection(result, regions, final, first, float(threshold), history, confusion)

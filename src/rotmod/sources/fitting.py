@@ -22,7 +22,7 @@ Per source the fit reports
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -125,6 +125,20 @@ class FitBins:
     empty: np.ndarray
     merged: np.ndarray
     detector: np.ndarray
+    #: Flat indices of the counted bins, of the empty bins (detector by detector, as the
+    #: flattening orders them) and where each merged detector's run of them starts: the
+    #: fit bins are gathered, not masked, so that ``k`` columns cost ``n_fit k``, not
+    #: ``n_det n_time k`` passes over temporaries.
+    _take: np.ndarray = field(init=False, repr=False)
+    _empty_flat: np.ndarray = field(init=False, repr=False)
+    _starts: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        empty_flat = np.flatnonzero(self.empty)
+        first = np.searchsorted(empty_flat // self.empty.shape[1], self.merged)
+        object.__setattr__(self, "_take", np.flatnonzero(self.counted))
+        object.__setattr__(self, "_empty_flat", empty_flat)
+        object.__setattr__(self, "_starts", first)
 
     @classmethod
     def of(cls, counts: np.ndarray, valid: np.ndarray) -> FitBins:
@@ -136,13 +150,26 @@ class FitBins:
         rows = np.broadcast_to(np.arange(n_det)[:, None], (n_det, n_t))[counted]
         return cls(counted, empty, merged, np.concatenate([rows, merged]).astype(np.int64))
 
-    def __call__(self, v: np.ndarray) -> np.ndarray:
+    def __call__(self, v: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
         """Values ``(n_det, n_time)`` or ``(n_det, n_time, k)`` on the fit bins (summed
-        over each merged bin): ``(n_fit,)`` or ``(n_fit, k)``."""
-        v = np.asarray(v, dtype=float)
-        mask = self.empty if v.ndim == 2 else self.empty[:, :, None]
-        sums = np.where(mask, v, 0.0).sum(axis=1)[self.merged]
-        return np.concatenate([v[self.counted], sums])
+        over each merged bin), times ``weight`` ``(n_det, n_time)`` if given: ``(n_fit,)``
+        or ``(n_fit, k)``, float64."""
+        v = np.asarray(v)
+        flat = v.reshape(self.empty.size, *v.shape[2:])
+        w = None if weight is None else np.asarray(weight, dtype=float).ravel()
+
+        def gather(idx: np.ndarray) -> np.ndarray:
+            out = flat[idx]
+            if w is None:
+                return out.astype(float, copy=False)
+            # float64 in one pass: w is float64
+            return out * (w[idx] if out.ndim == 1 else w[idx, None])
+
+        kept = gather(self._take)
+        if not self.merged.size:
+            return kept
+        sums = np.add.reduceat(gather(self._empty_flat), self._starts, axis=0)
+        return np.concatenate([kept, sums])
 
     def unfolded_maps(self, response: UnfoldedResponse, exposure: np.ndarray
                       ) -> list[sparse.csr_matrix]:
@@ -220,7 +247,7 @@ class SourceFitter:
     def on_bins(self, columns: np.ndarray) -> np.ndarray:
         """Response columns ``(n_det, n_time, k)`` times the exposure, on the fit bins:
         ``(n_fit, k)``."""
-        return self.bins(self.exposure[:, :, None] * columns)
+        return self.bins(columns, self.exposure)
 
     def source_bins(self, model: SkyModel) -> np.ndarray:
         """:meth:`columns_on_bins` of ``model``'s sources, cached by position."""

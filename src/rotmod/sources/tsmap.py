@@ -19,6 +19,34 @@ readings of one likelihood.
 
 Pixels are taken in blocks of columns (:meth:`ResponseOperator.block`), so any response --
 held, matrix-free, Radon, stored -- gives its TS map within a memory budget.
+
+A wide field (10^6 pixels, 10^5 bins) has too many values for that: ``exact_above`` screens
+every pixel first with the **score test** at ``f = 0``, which needs no column, only three
+adjoint products of the whole sky,
+
+    g_n = sum_i c_ni (y_i / m0_i - 1),     I_n = sum_i c_ni^2 / m0_i - X_n^2 / H,
+    X_n = sum_i c_ni tb_i / m0_i,          H = sum_i tb_i^2 / m0_i,
+
+(``P^T``, :meth:`ResponseOperator.adjoint_squared` and ``P^T`` again) and gives
+``TS_score = g^2 / I`` (0 for ``g <= 0``), flux ``g / I`` and error ``I^-1/2``.  ``I`` is the
+expected information of the flux with the background levels profiled (a Schur complement),
+except that the levels' correction is pooled over detectors: by Cauchy-Schwarz
+``(sum_d X_d)^2 / sum_d H_d <= sum_d X_d^2 / H_d``, so the screen's ``I`` is too large and
+its TS too small, by the spread between detectors of the pixel's mean response over a turn.
+That spread is largest within a few degrees of the axis, where a source's ray sweeps
+circles on the mask no larger than the detector array: the screen's TS is there down to
+0.74 of the profiled score's for 7 detectors, 0.91 for 37 or 61, and above 0.96 beyond
+10 deg (``benchmarks/bench_tsmap_wide.py``).  With time bins averaged over sub-samples,
+the Radon response's squared table gives the mean of their squares, larger than the
+square of their mean, so that ``I`` is too large there too.  Each map measures the ratio of
+the profiled score's information to the screen's on a sample of pixels (their columns,
+:func:`_calibrate`) and takes the lowest, ``r``.  For faint
+signals the score and the likelihood ratio agree (both are ``chi2`` under the null); for
+bright ones the score, with the expected information, exceeds the ratio.  So every pixel
+whose screen TS reaches ``SCREEN_MARGIN r exact_above`` is then computed exactly, as above,
+and the map holds the likelihood ratio wherever TS is near or above ``exact_above`` and the
+score test elsewhere (:attr:`TSMap.exact` says which).  The screen's upper limit and
+sensitivity are the same quadratic likelihood's.
 """
 
 from __future__ import annotations
@@ -29,11 +57,13 @@ from typing import Any
 import numba as nb
 import numpy as np
 
+from rotmod._validate import as_scalar
 from rotmod.errors import ParameterError
 from rotmod.limits import check_memory, memory_budget
 from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.response.operator import ResponseOperator
 from rotmod.response.parallel import block_grid, iter_blocks
+from rotmod.response.unfolded import UnfoldedResponse
 from rotmod.sky.geometry import SkyGeometry
 from rotmod.sources.fitting import FitBins, SourceFitter, ul_threshold
 from rotmod.sources.model import SkyModel
@@ -42,6 +72,17 @@ __all__ = ["TSMap", "ts_map"]
 
 #: Newton steps at most (each solve converges in ~5-15).
 _MAX_NEWTON = 60
+#: A screened map (``exact_above``) computes the likelihood ratio exactly wherever the
+#: screen's TS reaches ``SCREEN_MARGIN * r * exact_above``, with ``r`` the lowest ratio of
+#: the screen's TS to the profiled score's measured on :data:`CALIBRATION_PIXELS` pixels of
+#: the map (module notes); 0.9 covers what the sample misses and the score's departure from
+#: the likelihood ratio near the cut (both measured in ``benchmarks/bench_tsmap_wide.py``).
+SCREEN_MARGIN = 0.9
+#: Pixels of the screen's calibration: half the nearest to the axis, half at directions with
+#: ``theta`` uniform over the field (the pooling matters most within a few degrees of it).
+CALIBRATION_PIXELS = 128
+#: Columns per block of the exact pass over a screened map's selected pixels.
+_REFINE_BLOCK = 256
 
 
 @nb.njit(cache=True)
@@ -252,6 +293,12 @@ class TSMap:
     sensitivity : ndarray
         Flux whose Asimov data set has ``TS = sensitivity_ts``.
     ul_confidence, sensitivity_ts : float
+    exact : ndarray of bool or None
+        Pixels whose readings are the likelihood's (the others hold the score screen's,
+        module notes); ``None``: every pixel.
+    exact_above, screen_cut : float or None
+        The screened map's ``exact_above`` and the screen TS from which pixels were
+        computed exactly (``None``: not screened).
     """
 
     grid: SkyGeometry
@@ -262,6 +309,9 @@ class TSMap:
     sensitivity: np.ndarray
     ul_confidence: float
     sensitivity_ts: float
+    exact: np.ndarray | None = None
+    exact_above: float | None = None
+    screen_cut: float | None = None
 
     @property
     def sqrt_ts(self) -> np.ndarray:
@@ -282,6 +332,12 @@ def null_state(fitter: SourceFitter, model: SkyModel | None) -> tuple[np.ndarray
     ``det`` each valid bin's detector, ``tb`` its background template times exposure (0
     when the background is known, not fitted) and ``b0`` the null's levels.
     """
+    return _fit_null(fitter, model)[1]
+
+
+def _fit_null(fitter: SourceFitter, model: SkyModel | None
+              ) -> tuple[SkyModel, tuple[np.ndarray, ...]]:
+    """The fitted null model and its :func:`null_state`."""
     model, res = fitter.maximise(SkyModel() if model is None else model)
     n_det = fitter.data.shape[0]
     det = fitter.bins.detector
@@ -296,7 +352,75 @@ def null_state(fitter: SourceFitter, model: SkyModel | None) -> tuple[np.ndarray
     if np.any((res.mu <= 0) & (fitter.y > 0)):
         raise ParameterError("the model predicts no counts in bins that have counts: fit a "
                              "background (or give a positive known background)")
-    return np.maximum(m_rest, 0.0), det, np.ascontiguousarray(tb), b0
+    return model, (np.maximum(m_rest, 0.0), det, np.ascontiguousarray(tb), b0)
+
+
+def _screen(fitter: SourceFitter, model: SkyModel, q_ul: float, q_sens: float
+            ) -> tuple[np.ndarray, float]:
+    """The score screen of every pixel (module notes): ``(n_sky, 5)`` readings as
+    :func:`scan_test_source`'s, from three adjoint products (NaN where a pixel is not seen:
+    no information left once the background levels are profiled), and the calibration's
+    ratio (:func:`_calibrate`)."""
+    resp = fitter.response
+    mu = fitter.expected(model)
+    ex = fitter.exposure
+    seen = ex > 0
+    inv = np.divide(1.0, mu, out=np.zeros_like(mu), where=seen & (mu > 0))
+    g = np.asarray(resp.adjoint(np.where(seen, ex * (fitter.data.counts * inv - 1.0), 0.0)),
+                   dtype=np.float64)
+    info1 = resp.adjoint_squared(ex * ex * inv)
+    info = info1
+    tb = ex * fitter.template(model) if fitter.fit_background else np.zeros_like(ex)
+    if fitter.fit_background:
+        x = np.asarray(resp.adjoint(tb * ex * inv), dtype=np.float64)
+        info = info1 - x * x / np.sum(tb * tb * inv)
+    ratio = _calibrate(fitter, info, tb, inv)
+    out = np.full((resp.n_sky, 5), np.nan)
+    # Pooling the levels' correction can only leave too much information (module notes),
+    # so a pixel with none left relative to its own is one the background hides.
+    ok = info > 1e-9 * info1
+    i = info[ok]
+    fhat = g[ok] / i
+    flux = np.maximum(fhat, 0.0)
+    out[ok, 0] = np.where(fhat > 0.0, g[ok] * fhat, 0.0)
+    out[ok, 1] = flux
+    out[ok, 2] = 1.0 / np.sqrt(i)
+    # The quadratic likelihood's readings: 2 (ln L(flux) - ln L(u)) = q_ul above the
+    # bounded fit, and the Asimov TS s^2 I = q_sens.
+    if q_ul > 0.0:
+        out[ok, 3] = fhat + np.sqrt((flux - fhat) ** 2 + q_ul / i)
+    if q_sens > 0.0:
+        out[ok, 4] = np.sqrt(q_sens / i)
+    return out, ratio
+
+
+def _calibrate(fitter: SourceFitter, info: np.ndarray, tb: np.ndarray, inv: np.ndarray
+               ) -> float:
+    """The lowest ratio of the profiled score's information (per-detector background
+    correction, from the columns) to the screen's ``info`` on the calibration pixels: the
+    screen's TS over the score's, with every approximation of the screen in it (the pooling,
+    and the squared table of :meth:`~rotmod.response.RadonResponse.adjoint_squared`)."""
+    resp = fitter.response
+    n = min(CALIBRATION_PIXELS, resp.n_sky)
+    if resp.grid is None:
+        idx = np.arange(n)
+    else:
+        theta = resp.grid.directions()[0].to_value("rad").ravel()
+        order = np.argsort(theta, kind="stable")
+        # theta uniform: the pixel whose theta is nearest each of n/2 equally spaced values
+        want = np.linspace(theta.min(), theta.max(), n - n // 2)
+        rank = np.clip(np.searchsorted(theta[order], want), 0, theta.size - 1)
+        idx = np.unique(np.concatenate([order[: n // 2], order[rank]]))
+    ex = fitter.exposure
+    c = ex[:, :, None] * np.asarray(resp.columns(idx), dtype=np.float64)
+    profiled = np.einsum("dtn,dt->n", c * c, inv)
+    h = np.sum(tb * tb * inv, axis=1)
+    seen = h > 0
+    if np.any(seen):
+        x = np.einsum("dtn,dt->dn", c[seen], (tb * inv)[seen])
+        profiled -= np.sum(x * x / h[seen, None], axis=0)
+    good = (info[idx] > 0) & (profiled > 0)
+    return float(min(1.0, np.min(profiled[good] / info[idx][good], initial=1.0)))
 
 
 def scan_test_source(fitter: SourceFitter, state: tuple[np.ndarray, ...], columns: np.ndarray,
@@ -330,7 +454,7 @@ def _scan_block(columns: np.ndarray, _block: Any, exposure: np.ndarray, bins: Fi
                 b0: np.ndarray, q_ul: float, q_sens: float) -> np.ndarray:
     """The scan of one block of columns (the ``reduce`` of the block walk: on a Dask
     worker, only the ``(k, 5)`` result travels back)."""
-    return _scan_bins(bins(exposure[:, :, None] * columns), y, m_rest, det, tb, b0, q_ul,
+    return _scan_bins(bins(columns, exposure), y, m_rest, det, tb, b0, q_ul,
                       q_sens)
 
 
@@ -342,6 +466,7 @@ def ts_map(
     ul_confidence: float = 0.95,
     sensitivity_ts: float | None = 25.0,
     limits: bool = True,
+    exact_above: float | None = None,
     fitter: SourceFitter | None = None,
     progress: ProgressArg = None,
     block_pixels: int | None = None,
@@ -366,6 +491,12 @@ def ts_map(
     limits : bool
         Compute the upper limits and the sensitivity (``False``: TS, flux and error only,
         ~5x faster; the others NaN).
+    exact_above : float, optional
+        Screen every pixel with the score test first (three adjoint products, no columns;
+        module notes) and compute the likelihood ratio only where the screen's TS reaches
+        a calibrated fraction of ``exact_above``: what makes 10^6-pixel maps of a Radon response
+        take a minute.  The other pixels keep the screen's readings (:attr:`TSMap.exact`).
+        Needs folded data; the exact pass runs locally.  Default: every pixel exact.
     fitter : SourceFitter, optional
         Reuse one built for the same response and data.
     progress : bool or callable, optional
@@ -386,8 +517,13 @@ def ts_map(
     q_sens = 0.0 if sensitivity_ts is None or not limits else float(sensitivity_ts)
     if not limits:
         q_ul = 0.0
+    if exact_above is not None:
+        exact_above = as_scalar(exact_above, "exact_above", lo=0.0)
+        if isinstance(response, UnfoldedResponse):
+            raise ParameterError("exact_above: the score screen needs folded data (a "
+                                 "response on the data's own bins), got an unfolded response")
     f = SourceFitter(response, data) if fitter is None else fitter
-    state = null_state(f, model)
+    fitted, state = _fit_null(f, model)
     n_bins, n_sky = f.y.size, response.n_sky
     per_pixel = 8.0 * (2 * n_bins + response.n_det * response.n_time)
     check_memory(per_pixel + 8.0 * 6 * n_sky, f"a TS map of {n_sky} pixels",
@@ -398,6 +534,26 @@ def ts_map(
                 or block_pixels < 1:
             raise ParameterError(f"block_pixels must be an integer >= 1, got {block_pixels!r}")
         width = min(int(block_pixels), n_sky)
+    shape = response.grid.shape if response.grid is not None else (1, n_sky)
+    if exact_above is not None:
+        out, ratio = _screen(f, fitted, q_ul, q_sens)
+        cut = SCREEN_MARGIN * ratio * exact_above
+        chosen = np.flatnonzero(out[:, 0] >= cut)  # NaN: not chosen
+        update, close = progress_callbacks(progress, chosen.size, "TS map (exact pixels)",
+                                           "pixel")
+        try:
+            for k0 in range(0, chosen.size, min(width, _REFINE_BLOCK)):
+                idx = chosen[k0:k0 + min(width, _REFINE_BLOCK)]
+                out[idx] = _scan_bins(f.on_bins(response.columns(idx)), f.y, *state, q_ul,
+                                      q_sens)
+                update(k0 + idx.size, chosen.size)
+        finally:
+            close()
+        exact = np.zeros(n_sky, dtype=bool)
+        exact[chosen] = True
+        maps = [out[:, j].reshape(shape) for j in range(5)]
+        return TSMap(response.grid, *maps, ul_confidence, q_sens, exact.reshape(shape),
+                     exact_above, cut)
     blocks = block_grid((response.n_det, response.n_time, n_sky), (response.n_time, width))
     out = np.empty((n_sky, 5))
     update, close = progress_callbacks(progress, n_sky, "TS map", "pixel")
@@ -415,6 +571,5 @@ def ts_map(
             update(done, n_sky)
     finally:
         close()
-    shape = response.grid.shape if response.grid is not None else (1, n_sky)
     maps = [out[:, j].reshape(shape) for j in range(5)]
     return TSMap(response.grid, *maps, ul_confidence, q_sens)

@@ -139,7 +139,7 @@ def confusion_noise(ts_map: TSMap, sources: tuple[PointSource, ...] | list[Point
         raise ParameterError(f"radius must be >= 0 deg, got {radius!r}")
     ts = np.asarray(ts_map.ts, dtype=float).ravel()
     keep = np.isfinite(ts)
-    if len(sources) and radius > 0:
+    if len(sources) and radius > 0 and ts_map.grid is not None:
         th, ph = ts_map.grid.directions()
         if ts_map.grid.frame == "celestial":
             vec = ts_map.grid.attitude.to_sky(th, ph).cartesian.xyz.value.T
@@ -290,6 +290,6 @@ def detect(
                    for k in range(len(result.model.sources))]
     # The field's confusion noise, away from the catalogued sources (their residuals are
     # fitted away within about the instrument's angular scale).
-    confusion = confusion_noise(final, result.model.sources,
-                                np.degrees(2.0 * geometric_scale(response)))
+    radius = 0.0 if response.instrument is None else np.degrees(2 * geometric_scale(response))
+    confusion = confusion_noise(final, result.model.sources, radius)
     return Detection(result, regions, final, first, float(threshold), history, confusion)

@@ -22,6 +22,12 @@ interval, whatever the interval's length), marked "extrap.".  Accuracy: the prod
 against the per-interval sum (max |difference| / |x|_1 and / |y|_1), and every value at 16
 sampled pixels against the exact model evaluated interval by interval
 (``columns_at``, the definition of the drift response).
+
+``--shift`` (run first): the error of treating a small tilt of the pointing as a shift of
+the projection along ``w`` (docs/physics.md 2c): pixels in a disc of radius r about the
+axis, seen after a tilt by eps (exact: the rotated directions, a projective map of the
+tangent plane) and as the tangent-plane shift ``t + b`` (``b`` the image of the axis); max
+|ΔP| of the exact model over the 19 detectors and 360 angles.
 """
 
 from __future__ import annotations
@@ -35,10 +41,10 @@ import numba
 import numpy as np
 
 from rotmod.io import load_instrument
-from rotmod.response import TimeBinning
+from rotmod.response import TimeBinning, build_response
 from rotmod.response.columns import columns_at
 from rotmod.response.drift import drift_response
-from rotmod.sky import AttitudeTable, CelestialGrid
+from rotmod.sky import AttitudeTable, CelestialGrid, DirectionList
 from rotmod.testing import dot_test
 
 INST = load_instrument("prototype")
@@ -137,12 +143,41 @@ def _print(title: str, rows: list[dict]) -> None:
               f"{r['pair_old'] / r['pair_new']:.1f}× | {d} | – | – |")
 
 
+def shift_error() -> None:
+    """Max |ΔP| of the shift approximation of a tilt, by field radius and tilt."""
+    print("\n| field radius | tilt | max \\|t\\|² ε (w warp) | max \\|ΔP\\| shift vs exact |")
+    print("|---:|---:|---:|---:|")
+    bins = TimeBinning(360)
+    for radius in (7.0, 14.0, 25.0):
+        rho = np.sqrt(np.linspace(0.0, 1.0, 12)) * np.tan(np.radians(radius))
+        ang = np.radians(np.arange(0.0, 360.0, 22.5))
+        t = np.stack([np.outer(rho, np.cos(ang)).ravel(), np.outer(rho, np.sin(ang)).ravel()],
+                     axis=1)
+        u = np.column_stack([t, np.ones(len(t))])
+        for tilt_arcmin in (0.5, 2.0, 10.0, 60.0):
+            e = np.radians(tilt_arcmin / 60.0)
+            rot = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(e), -np.sin(e)],
+                            [0.0, np.sin(e), np.cos(e)]])  # a tilt about instrument x
+            v = u @ rot.T
+            exact = v[:, :2] / v[:, 2:]
+            b = rot[:2, 2] / rot[2, 2]  # where the axis goes: the shift
+            shifted = t + b
+            p = [build_response(INST, DirectionList(np.degrees(np.arctan(np.hypot(*q.T))),
+                                                    np.degrees(np.arctan2(q[:, 1], q[:, 0]))),
+                                bins, "exact", ENERGY, dtype=np.float64).matrix
+                 for q in (exact, shifted)]
+            warp = float((np.hypot(*t.T) ** 2).max() * e)
+            print(f"| {radius:g}° | {tilt_arcmin:g}′ | {warp:.1e} | "
+                  f"{np.abs(p[0] - p[1]).max():.1e} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--old-max", type=int, default=100,
                     help="largest number of intervals the per-interval sum is timed for")
     ap.add_argument("--counts", type=int, nargs="+", default=[1, 10, 100, 1000])
+    ap.add_argument("--shift", action="store_true", help="also the shift approximation's error")
     args = ap.parse_args()
     load0 = os.getloadavg()
     print(f"# bench_drift: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
@@ -152,6 +187,9 @@ def main() -> None:
           f"{BINS.n_bins} {BINS.mode} bins, float64, tolerance {TOL:g}; "
           f"median of {args.repeat} pairs; load average at start {load0[0]:.2f} "
           f"{load0[1]:.2f} {load0[2]:.2f}")
+    if args.shift:
+        print("\nThe error of a tilt treated as a shift along w (prototype, exact model)")
+        shift_error()
     fixed = [_row(1000.0, n, args, accuracy=True) for n in args.counts]
     _fill_extrapolation(fixed)
     _print("A fixed 1000 s flight (16.7 turns) cut into more intervals", fixed)

@@ -149,12 +149,13 @@ def _lagrange_at(q, nodes, inv_den, out):
 
 
 @njit(cache=True, inline="always", fastmath=_FMA)
-def _pixel(s, n, m00, m01, m02, m10, m11, m12, m20, m21, m22):
+def _pixel(s, n, m):
     """Tangent-plane coordinates and ``q = 1 / cos(theta)`` of unit vector ``s[n]`` in the
-    frame of rows ``m``: the exact projective map of a rotation (docs/physics.md 2c)."""
+    frame of the rotation ``m`` (its 9 values, row by row): the exact projective map of a
+    rotation (docs/physics.md 2c)."""
     s0, s1, s2 = s[n, 0], s[n, 1], s[n, 2]
-    q = 1.0 / (m20 * s0 + m21 * s1 + m22 * s2)
-    return (m00 * s0 + m01 * s1 + m02 * s2) * q, (m10 * s0 + m11 * s1 + m12 * s2) * q, q
+    q = 1.0 / (m[6] * s0 + m[7] * s1 + m[8] * s2)
+    return (m[0] * s0 + m[1] * s1 + m[2] * s2) * q, (m[3] * s0 + m[4] * s1 + m[5] * s2) * q, q
 
 
 @functools.cache
@@ -181,30 +182,21 @@ def _drift_kernels(n_r: int) -> tuple[Any, Any]:
             like = out[b, 0, 0, 0, 0]  # the output's type, for the weights (radon._like)
             for p in range(ptr[b], ptr[b + 1]):
                 m = rot[att[p]]
-                m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
-                m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
-                m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
                 wa, wb = w1[p], w2[p]
                 for n in range(n_pix):
-                    tx, ty, q = _pixel(s, n, m00, m01, m02, m10, m11, m12, m20, m21, m22)
+                    tx, ty, q = _pixel(s, n, m)
                     _lagrange_at(q, nodes, inv_den, cw)
                     for sub in range(n_sub):
                         a = ang[b] + sub
                         i, b0, b1, b2, b3 = _node(tx, ty, cos_a[a], sin_a[a], k0, inv_dw, like)
-                        if wa != 0.0:
-                            o = out[b, 0, sub]
-                            va = sky[n] * wa
+                        for h in range(2):
+                            wh = wa if h == 0 else wb
+                            if wh == 0.0:
+                                continue
+                            o = out[b, h, sub]
+                            v = sky[n] * wh
                             for r in range(n_r):
-                                vr = _like(va * cw[r], like)
-                                o[i - 1, r] += b0 * vr
-                                o[i, r] += b1 * vr
-                                o[i + 1, r] += b2 * vr
-                                o[i + 2, r] += b3 * vr
-                        if wb != 0.0:
-                            o = out[b, 1, sub]
-                            vb = sky[n] * wb
-                            for r in range(n_r):
-                                vr = _like(vb * cw[r], like)
+                                vr = _like(v * cw[r], like)
                                 o[i - 1, r] += b0 * vr
                                 o[i, r] += b1 * vr
                                 o[i + 1, r] += b2 * vr
@@ -227,30 +219,24 @@ def _drift_kernels(n_r: int) -> tuple[Any, Any]:
             for b in range(n_b):
                 for p in range(ptr[b], ptr[b + 1]):
                     m = rot[att[p]]
-                    m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
-                    m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
-                    m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
                     wa, wb = w1[p], w2[p]
                     for n in range(n0, n1):
-                        tx, ty, q = _pixel(s, n, m00, m01, m02, m10, m11, m12, m20, m21, m22)
+                        tx, ty, q = _pixel(s, n, m)
                         _lagrange_at(q, nodes, inv_den, cw)
-                        ta = 0.0
-                        tb = 0.0
-                        for sub in range(n_sub):
-                            a = ang[b] + sub
-                            i, b0, b1, b2, b3 = _node(tx, ty, cos_a[a], sin_a[a], k0, inv_dw,
-                                                      like)
-                            if wa != 0.0:
-                                g = gg[b, 0, sub]
+                        for h in range(2):
+                            wh = wa if h == 0 else wb
+                            if wh == 0.0:
+                                continue
+                            total = 0.0
+                            for sub in range(n_sub):
+                                a = ang[b] + sub
+                                i, b0, b1, b2, b3 = _node(tx, ty, cos_a[a], sin_a[a], k0,
+                                                          inv_dw, like)
+                                g = gg[b, h, sub]
                                 for r in range(n_r):
-                                    ta += cw[r] * (b0 * g[i - 1, r] + b1 * g[i, r]
-                                                   + b2 * g[i + 1, r] + b3 * g[i + 2, r])
-                            if wb != 0.0:
-                                g = gg[b, 1, sub]
-                                for r in range(n_r):
-                                    tb += cw[r] * (b0 * g[i - 1, r] + b1 * g[i, r]
-                                                   + b2 * g[i + 1, r] + b3 * g[i + 2, r])
-                        acc[n] += wa * ta + wb * tb
+                                    total += cw[r] * (b0 * g[i - 1, r] + b1 * g[i, r]
+                                                      + b2 * g[i + 1, r] + b3 * g[i + 2, r])
+                            acc[n] += wh * total
 
     return splat, gather
 
@@ -309,7 +295,7 @@ class RadonDriftResponse(ResponseOperator):
         rot_all = attitude_rotations(attitudes)
         # Intervals of one attitude are one pair per bin (their weights add).
         rot, which = np.unique(rot_all.reshape(-1, 9), axis=0, return_inverse=True)
-        rot = np.ascontiguousarray(rot.reshape(-1, 3, 3))
+        rot = np.ascontiguousarray(rot.reshape(-1, 3, 3))  # (attitudes, 3, 3)
         merged = np.zeros((rot.shape[0], self.n_time))
         np.add.at(merged, which.ravel(), wts)
         # Each attitude's pixels: their zenith range (all of them set the one table) and the
@@ -340,7 +326,7 @@ class RadonDriftResponse(ResponseOperator):
         u0 = sky @ rot[0].T
         self._perm = _morton_order(u0[:, 0] / u0[:, 2], u0[:, 1] / u0[:, 2])
         self._sky = np.ascontiguousarray(sky[self._perm])
-        self._rot = rot
+        self._rot = np.ascontiguousarray(rot.reshape(-1, 9))  # row by row, for the kernels
         # The (attitude, distinct bin) pairs with exposure in bin t (weight w1) or t + n/2
         # (w2): both see the same angles (the half turn maps each interval's mask onto
         # itself).  Where every pair of a bin has w1 == w2 (intervals of whole turns), the

@@ -46,6 +46,7 @@ from rotmod.events.folding import exposure_per_bin
 from rotmod.limits import check_memory
 from rotmod.response.materialised import MaterialisedResponse, build_response
 from rotmod.response.operator import ResponseOperator
+from rotmod.response.parallel import block_ranges
 from rotmod.response.radon import (
     _FMA,
     BLOCK_BYTES,
@@ -244,6 +245,39 @@ def _drift_kernels(n_r: int) -> tuple[Any, Any]:
                             acc[n] += wh * total
 
     return splat, gather
+
+
+@njit(parallel=True, cache=True)
+def _drift_dense(tab, s, rot, nodes, inv_den, ptr, att, w1, w2, ang, cos_a, sin_a, k0, inv_dw,
+                 jx, ax, n_sub, out):
+    """``out[h, d, b, n]``: every value of the drift response at pixels ``s`` (half ``h`` of
+    distinct bin ``b``), with the products' weights, one element at a time (for
+    :meth:`RadonDriftResponse.block`); one task per distinct bin."""
+    n_det, n_b, n_pix = out.shape[1], out.shape[2], out.shape[3]
+    n_r = nodes.size
+    for b in prange(n_b):
+        cw = np.empty(n_r)
+        for p in range(ptr[b], ptr[b + 1]):
+            m = rot[att[p]]
+            for n in range(n_pix):
+                tx, ty, q = _pixel(s, n, m)
+                _lagrange_at(q, nodes, inv_den, cw)
+                for sub in range(n_sub):
+                    a = ang[b] + sub
+                    i, b0, b1, b2, b3 = _node(tx, ty, cos_a[a], sin_a[a], k0, inv_dw, 0.0)
+                    for d in range(n_det):
+                        total = 0.0
+                        for tap in range(jx.shape[2]):
+                            row = tab[jx[d, a, tap]]
+                            dot = 0.0
+                            for r in range(n_r):
+                                dot += cw[r] * (b0 * row[(i - 1) * n_r + r]
+                                                + b1 * row[i * n_r + r]
+                                                + b2 * row[(i + 1) * n_r + r]
+                                                + b3 * row[(i + 2) * n_r + r])
+                            total += ax[d, a, tap] * dot
+                        out[0, d, b, n] += w1[p] * total
+                        out[1, d, b, n] += w2[p] * total
 
 
 class RadonDriftResponse(ResponseOperator):
@@ -449,6 +483,30 @@ class RadonDriftResponse(ResponseOperator):
         out = np.empty(self.n_sky)
         out[self._perm] = acc
         return out.astype(self.dtype, copy=False)
+
+    def block(
+        self, t: tuple[int, int] | None = None, n: tuple[int, int] | None = None
+    ) -> np.ndarray:
+        """``P[:, t0:t1, n0:n1]`` (``None`` = whole axis): the values the products use,
+        evaluated pixel by pixel from the table (so :meth:`materialise`, ``columns_at`` of
+        the grid's pixels and the default ``adjoint_squared`` need no product per pixel)."""
+        (t0, t1), (n0, n1) = block_ranges(t, n, self.n_time, self.n_sky)
+        f = self._factors
+        nd = self._ang.size
+        check_memory(2.0 * self.n_det * nd * (n1 - n0) * 8.0,
+                     f"a drift response of {self.n_det} x {self.n_time} x {n1 - n0} values",
+                     hint="ask for fewer pixels at a time")
+        where = np.empty(self.n_sky, dtype=np.int64)
+        where[self._perm] = np.arange(self.n_sky)  # each pixel's place in the kernels' order
+        part = np.zeros((2, self.n_det, nd, n1 - n0))
+        _drift_dense(f.table, np.ascontiguousarray(self._sky[where[n0:n1]]), self._rot,
+                     self._nodes, self._inv_den, self._ptr, self._att, self._w1, self._w2,
+                     self._ang, f.cos_a, f.sin_a, f.k0, f.inv_dw, f.jx, f.ax, f.n_sub, part)
+        out = part[0]
+        if self._half:
+            second = np.where(self._same[None, :, None], part[0], part[1])
+            out = np.concatenate([part[0], second], axis=1)[:, : self.n_time]
+        return out[:, t0:t1].astype(self.dtype, copy=False)
 
     def metadata(self) -> dict[str, Any]:
         """As :meth:`ResponseOperator.metadata`, plus ``operator``: ``kind`` "radon-drift",

@@ -333,6 +333,7 @@ class _Factors:
     k_hi: np.ndarray
     n_sub: int
     gemm: bool
+    q_nodes: np.ndarray | None = None  # (R,) the optical-depth nodes in q
 
     def angles(self, t0: int, t1: int) -> slice:
         return slice(t0 * self.n_sub, t1 * self.n_sub)
@@ -346,15 +347,37 @@ def _forward_block(blk: tuple[int, int], f: _Factors, v: np.ndarray) -> np.ndarr
     rr = np.zeros((n_ang, f.n_w, f.n_q), dtype=f.table.dtype)
     splat, _ = _projection_kernels(f.n_q)
     splat(f.tx, f.ty, v, f.cos_a[sl], f.sin_a[sl], f.k0, f.inv_dw, rr)
-    flat = rr.reshape(n_ang, -1)
+    per_angle = _detect(f, sl, rr.reshape(n_ang, -1))
+    return per_angle.reshape(-1, t1 - t0, f.n_sub).sum(axis=2, dtype=np.float64)
+
+
+def _detect(f: _Factors, sl: slice | np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """The detector stage: rates ``(D, n_ang)`` of splatted angles ``flat (n_ang, K R)``
+    whose detector rows are those of the angles ``sl`` (a slice or indices into
+    ``f.cos_a``)."""
+    n_ang = flat.shape[0]
     jx, ax = f.jx[:, sl], f.ax[:, sl]
     if f.gemm:
         z = flat @ f.table.T  # (n_ang, J)
-        per_angle = np.sum(z[np.arange(n_ang)[None, :, None], jx] * ax, axis=2)
-    else:
-        per_angle = np.empty((jx.shape[0], n_ang), dtype=f.table.dtype)
-        _rows_forward(f.table, flat, jx, ax, f.k_lo[sl], f.k_hi[sl], per_angle)
-    return per_angle.reshape(jx.shape[0], t1 - t0, f.n_sub).sum(axis=2, dtype=np.float64)
+        return np.sum(z[np.arange(n_ang)[None, :, None], jx] * ax, axis=2)
+    per_angle = np.empty((jx.shape[0], n_ang), dtype=f.table.dtype)
+    _rows_forward(f.table, flat, jx, ax, f.k_lo[sl], f.k_hi[sl], per_angle)
+    return per_angle
+
+
+def _detect_adjoint(f: _Factors, sl: slice | np.ndarray, ya: np.ndarray) -> np.ndarray:
+    """The transpose of :func:`_detect`: splat-row weights ``(n_ang, K R)`` of data
+    ``ya (D, n_ang)`` (already repeated over sub-angles)."""
+    n_ang = ya.shape[1]
+    jx, ax = f.jx[:, sl], f.ax[:, sl]
+    if f.gemm:
+        w = np.zeros((n_ang, f.table.shape[0]), dtype=f.table.dtype)
+        rows = np.broadcast_to(np.arange(n_ang)[None, :, None], jx.shape)
+        np.add.at(w, (rows, jx), ya[:, :, None] * ax)
+        return w @ f.table
+    gg = np.zeros((n_ang, f.table.shape[1]), dtype=f.table.dtype)
+    _rows_adjoint(f.table, ya, jx, ax, f.k_lo[sl], f.k_hi[sl], gg)
+    return gg
 
 
 def _adjoint_block(blk: tuple[int, int], f: _Factors, y: np.ndarray) -> np.ndarray:
@@ -364,15 +387,7 @@ def _adjoint_block(blk: tuple[int, int], f: _Factors, y: np.ndarray) -> np.ndarr
     n_ang = sl.stop - sl.start
     # Each sub-sample of bin t sees the bin's datum (the 1/n_sub is in ax).
     ya = np.repeat(np.ascontiguousarray(y[:, t0:t1], dtype=f.table.dtype), f.n_sub, axis=1)
-    jx, ax = f.jx[:, sl], f.ax[:, sl]
-    if f.gemm:
-        w = np.zeros((n_ang, f.table.shape[0]), dtype=f.table.dtype)
-        rows = np.broadcast_to(np.arange(n_ang)[None, :, None], jx.shape)
-        np.add.at(w, (rows, jx), ya[:, :, None] * ax)
-        gg = w @ f.table
-    else:
-        gg = np.zeros((n_ang, f.table.shape[1]), dtype=f.table.dtype)
-        _rows_adjoint(f.table, ya, jx, ax, f.k_lo[sl], f.k_hi[sl], gg)
+    gg = _detect_adjoint(f, sl, ya)
     # In the table's type: float32 sums of a block's angles (~1e-6 relative) are far below the
     # interpolation tolerance, and the loop then does no conversions; blocks add in float64.
     acc = np.zeros((f.tx.size, f.n_q), dtype=f.table.dtype)
@@ -581,7 +596,7 @@ class RadonResponse(ResponseOperator):
             q_weights=np.ascontiguousarray(_lagrange(q[perm], q_nodes), dtype=dt),
             cos_a=cos_a, sin_a=sin_a, jx=np.ascontiguousarray(jx),
             ax=np.ascontiguousarray(ax, dtype=dt), k_lo=k_lo, k_hi=k_hi,
-            n_sub=tb.n_sub, gemm=gemm,
+            n_sub=tb.n_sub, gemm=gemm, q_nodes=q_nodes,
         )
 
     def _table(self, a, b, h, big_l, radius, mu, period, n_x, n_w, k0, dw, q_nodes):

@@ -475,7 +475,7 @@ def summarise(runs: list[dict], args) -> dict:
             "oracle_ts_real": r["oracle_peaks"]["ts_real"],
             "residual25": len(r["residual_peaks"]["ts_real"]),
             "residual_ts": r["residual_peaks"]["ts_real"],
-            "rejected": sum(not h["added"] for h in r["history"]),
+            "rejected": sum(not h["added"] for h in r["history"] if "added" in h),
             "first_ghosts": r["first_peaks"]["ts_real"],
             "false_sep": [c["nearest_real"] for c in cat if c["false"]],
             "sum_snr2": float(sum(s["snr"] ** 2 for s in r["sources"])),

@@ -671,16 +671,8 @@ class RadonResponse(ResponseOperator):
         same weights on the squared table give its square to the interpolation's order
         (5e-5 relative at tolerance 1e-3, ``benchmarks/bench_tsmap_wide.py``).  With
         ``n_sub`` sub-samples per time bin it is the mean of their squares, which exceeds
-        the square of their mean by their variance within the bin.
-
-        Parameters
-        ----------
-        counts : ndarray, shape (n_det, n_time)
-
-        Returns
-        -------
-        ndarray, shape (n_sky,)
-            float64.
+        the square of their mean by their variance within the bin.  Parameters and result
+        as :meth:`ResponseOperator.adjoint_squared`.
         """
         y = self._check_counts(counts)
         return self._adjoint_with(self._squared_factors, y)

@@ -16,6 +16,7 @@ Reports per method the index's and K's coverage, mean pull and pull width, the c
 the extracted fits, and the difference of the two methods in units of the joint fit's error.
 
     NUMBA_NUM_THREADS=1 python benchmarks/spectra_extraction.py --n 200 --out r.json
+    NUMBA_NUM_THREADS=1 python benchmarks/spectra_extraction.py --n 100 --hours 0.5 0.05
 """
 
 from __future__ import annotations
@@ -32,32 +33,22 @@ from rotmod.sources.spectra import expected_counts, extract_spectrum, fit_spectr
 from rotmod.spectral import PowerLaw, fit_spectrum
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=200, help="realisations")
-    ap.add_argument("--photons", type=int, default=20000, help="detector MC photons per node")
-    ap.add_argument("--hours", type=float, default=16.7, help="observation (h)")
-    ap.add_argument("--out", default=None, help="JSON file for the results")
-    args = ap.parse_args()
-    t0 = time.time()
-    n_bins = 60
-    # Source 0 (the one extracted) 8 deg off axis; source 1, softer, 4 deg off axis on the
-    # other side.
-    cols, bkg = survey(args.photons, ([8.0, 4.0], [40.0, 200.0]), n_bins)
-    t_setup = time.time() - t0
-    truth = [PowerLaw(2e-4, -2.0), PowerLaw(1e-4, -2.5)]
-    start = [PowerLaw(4e-4, -1.6), PowerLaw(2e-4, -2.0)]
-    expo = np.full(n_bins, args.hours * 3600.0 / n_bins)
+def run_case(cols, bkg, truth, start, hours, n, rng, n_bins) -> dict:
+    """``n`` realisations of an observation of ``hours``: pulls of both methods, their
+    difference and the extracted fits' chi-square (printed and returned)."""
+    expo = np.full(n_bins, hours * 3600.0 / n_bins)
     mu = expected_counts(cols, expo, truth, background=bkg)
     src = [float((cols.rates(k, m).sum(axis=2) * expo).sum()) for k, m in enumerate(truth)]
-    print(f"setup {t_setup:.1f} s; sources {src[0]:.0f} and {src[1]:.0f} counts, background "
-          f"{mu.sum() - sum(src):.0f}; {args.n} realisations")
-    rng = np.random.default_rng(2027)
+    chan = (cols.rates(0, truth[0]) * expo[:, None]).sum(axis=(0, 1))
+    bkg_chan = bkg * expo.sum() * cols.shape[0]
+    print(f"\n{hours:g} h: sources {src[0]:.0f} and {src[1]:.0f} counts, background "
+          f"{mu.sum() - sum(src):.0f}; source 0 per channel {chan.min():.0f}-{chan.max():.0f}, "
+          f"background per channel {bkg_chan.min():.0f}-{bkg_chan.max():.0f}")
     names = ("K", "index")
     rows = {"extracted": [], "joint": []}
     chi2, diff, times = [], [], {"extract": [], "chi2 fit": [], "joint": []}
     n_c = cols.shape[2]
-    for _ in range(args.n):
+    for _ in range(n):
         y = rng.poisson(mu)
         t1 = time.time()
         spec = extract_spectrum(cols, y, expo, 0)
@@ -78,10 +69,11 @@ def main() -> None:
         chi2.append(ext.statistic)
         diff.append([(ext.model.parameters[p] - joint.models[0].parameters[p])
                      / joint.errors[0][p] for p in names])
-    report = {"setup_s": t_setup, "n": args.n, "source_counts": src,
-              "background_counts": float(mu.sum() - sum(src)),
+    report = {"source_counts": src, "background_counts": float(mu.sum() - sum(src)),
+              "source_counts_per_channel": chan.tolist(),
+              "background_counts_per_channel": bkg_chan.tolist(),
               "median_s": {k: float(np.median(v)) for k, v in times.items()}, "methods": {}}
-    lo1, hi1 = wilson(round(0.6827 * args.n), args.n)
+    lo1, hi1 = wilson(round(0.6827 * n), n)
     print(f"{'method':>10} {'param':>6} {'in 1 sigma':>12} {'in 1.645':>9} {'mean pull':>10} "
           f"{'pull std':>9} {'median error':>13}   (2-sigma band at 1 sigma [{lo1:.3f}, "
           f"{hi1:.3f}])")
@@ -111,6 +103,31 @@ def main() -> None:
           f"{n_c - 2} degrees of freedom (expected {n_c - 2}, {np.sqrt(2 * (n_c - 2)):.1f})")
     print("median times (s): " + ", ".join(f"{k} {v:.2f}" for k, v in
                                             report["median_s"].items()))
+    return report
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=200, help="realisations")
+    ap.add_argument("--photons", type=int, default=20000, help="detector MC photons per node")
+    ap.add_argument("--hours", type=float, nargs="+", default=[16.7],
+                    help="observations (h), one case each")
+    ap.add_argument("--out", default=None, help="JSON file for the results")
+    args = ap.parse_args()
+    t0 = time.time()
+    n_bins = 60
+    # Source 0 (the one extracted) 8 deg off axis; source 1, softer, 4 deg off axis on the
+    # other side.
+    cols, bkg = survey(args.photons, ([8.0, 4.0], [40.0, 200.0]), n_bins)
+    t_setup = time.time() - t0
+    truth = [PowerLaw(2e-4, -2.0), PowerLaw(1e-4, -2.5)]
+    start = [PowerLaw(4e-4, -1.6), PowerLaw(2e-4, -2.0)]
+    rng = np.random.default_rng(2027)
+    report = {"setup_s": t_setup, "n": args.n, "cases": {}}
+    print(f"setup {t_setup:.1f} s; {args.n} realisations per case")
+    for hours in args.hours:
+        report["cases"][f"{hours:g} h"] = run_case(cols, bkg, truth, start, hours, args.n,
+                                                   rng, n_bins)
     report["load"] = os.getloadavg()
     print(f"load average {report['load']}")
     if args.out:

@@ -247,10 +247,16 @@ def test_extraction_on_asimov_data_is_the_folded_model(two_sources) -> None:
                             subdivide=8)
     np.testing.assert_array_equal(fine.rate, wrong.rate)  # subdivide changes the response only
     assert np.max(np.abs(_folded_rate(fine, TRUTH[0]) / fine.rate - 1.0)) < err4 / 3
-    # The other source, extracted from the same counts, is its own too.
+    # The other source, extracted from the same counts, is its own too; and so is the first
+    # with the background also measured off the sources (one more bin per level).
     other = extract_spectrum(two_sources, mu, expo, 1, models=TRUTH)
     own1 = np.einsum("dtc,t->c", two_sources.rates(1, TRUTH[1]), expo) / spec.exposure
     np.testing.assert_allclose(other.rate, own1, rtol=1e-10)
+    off = np.full(two_sources.shape[::2], 0.04 * 3000.0)
+    with_off = extract_spectrum(two_sources, mu, expo, 0, models=TRUTH, off_counts=off,
+                                off_exposure=3000.0)
+    np.testing.assert_allclose(with_off.rate, own, rtol=1e-10)
+    assert np.all(with_off.error < spec.error)  # the levels are better known
 
 
 def test_extraction_is_the_channel_likelihood_maximum(two_sources) -> None:

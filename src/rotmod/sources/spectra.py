@@ -20,6 +20,12 @@ trial of the spectral parameters the backgrounds are profiled out exactly
 (:func:`rotmod.sources.likelihood.maximise`), and the spectral parameters minimise ``-2 ln L``
 (:func:`rotmod.spectral.minimise_statistic`, the one optimiser of every spectral fit).
 
+:func:`extract_spectrum` makes one source's spectrum as a coded-mask pipeline does: per
+channel, its rate fitted with the other sources and the background, its error, and the
+response (ARF and RMF) that predicts the extracted rate from a photon spectrum -- a
+:class:`rotmod.spectral.RateSpectrum` for chi-square fits and OGIP files (docs/spectra.md
+derives the response).
+
 Approximations, stated: the redistribution of a detector is the one of a uniformly lit face
 (the mask's shadow changes which part of the crystal is lit, which changes the escape
 probabilities slightly); between nodes the columns and the redistribution are taken as linear
@@ -341,8 +347,9 @@ def _poisson_bins(columns: Any, counts: Any, exposure: Any, models: Sequence[Any
     if off_counts is not None:
         off = np.asarray(off_counts)
         if off.shape != (n_det, n_c) or not np.all(np.isfinite(off)) or np.any(
-                off < 0) or np.any(off != np.round(off)):
-            raise ParameterError(f"off_counts must be non-negative integers of shape "
+                off < 0) or (integer and np.any(off != np.round(off))):
+            raise ParameterError(f"off_counts must be non-negative "
+                                 f"{'integers' if integer else 'values'} of shape "
                                  f"(n_det, n_channels) = {(n_det, n_c)}")
         if off_exposure is None:
             raise ParameterError("off_exposure (s) is required with off_counts")

@@ -138,9 +138,15 @@ def main() -> None:
                                  "source_counts": float(src),
                                  "background_counts": float(mu.sum() - src),
                                  "median_fit_s": float(np.median(times))}
-    print(f"\nload average {os.getloadavg()}")
-    if args.out:
-        with open(args.out, "w") as f:
+    save(report, args.out)
+
+
+def save(report: dict, out: str | None) -> None:
+    """Print the load average now and write ``report`` (with it, ``load_end``) as JSON."""
+    report["load_end"] = os.getloadavg()
+    print(f"\nload average {report['load_end']}")
+    if out:
+        with open(out, "w") as f:
             json.dump(report, f, indent=1)
 
 

@@ -22,12 +22,10 @@ the extracted fits, and the difference of the two methods in units of the joint 
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import time
 
 import numpy as np
-from spectra_calibration import survey, wilson
+from spectra_calibration import save, survey, wilson
 
 from rotmod.sources.spectra import expected_counts, extract_spectrum, fit_spectra
 from rotmod.spectral import PowerLaw, fit_spectrum
@@ -128,11 +126,7 @@ def main() -> None:
     for hours in args.hours:
         report["cases"][f"{hours:g} h"] = run_case(cols, bkg, truth, start, hours, args.n,
                                                    rng, n_bins)
-    report["load"] = os.getloadavg()
-    print(f"load average {report['load']}")
-    if args.out:
-        with open(args.out, "w") as f:
-            json.dump(report, f, indent=1)
+    save(report, args.out)
 
 
 if __name__ == "__main__":

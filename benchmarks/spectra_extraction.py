@@ -79,16 +79,21 @@ def run_case(cols, bkg, truth, start, hours, n, rng, n_bins) -> dict:
         r = np.array(r)
         report["methods"][method] = {}
         for j, p in enumerate(names):
-            pull = r[:, j]
+            # A fit without an error (not converged, or pegged) has no pull: counted apart.
+            pull = r[np.isfinite(r[:, j]), j]
             entry = {"in1": float(np.mean(np.abs(pull) < 1)),
                      "in90": float(np.mean(np.abs(pull) < 1.645)),
                      "mean_pull": float(pull.mean()), "std_pull": float(pull.std()),
-                     "median_error": float(np.median(r[:, 2 + j]))}
+                     "median_error": float(np.median(r[np.isfinite(r[:, 2 + j]), 2 + j])),
+                     "no_error": int(r.shape[0] - pull.size)}
             report["methods"][method][p] = entry
             print(f"{method:>10} {p:>6} {entry['in1']:>12.3f} {entry['in90']:>9.3f} "
                   f"{entry['mean_pull']:>10.3f} {entry['std_pull']:>9.3f} "
-                  f"{entry['median_error']:>13.4g}")
+                  f"{entry['median_error']:>13.4g}"
+                  + (f"   ({entry['no_error']} fits without an error left out)"
+                     if entry["no_error"] else ""))
     d = np.array(diff)
+    d = d[np.all(np.isfinite(d), axis=1)]
     chi2 = np.array(chi2)
     report["difference"] = {p: {"mean": float(d[:, j].mean()), "std": float(d[:, j].std()),
                                 "max_abs": float(np.abs(d[:, j]).max())}

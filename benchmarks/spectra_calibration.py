@@ -27,7 +27,12 @@ from rotmod.geometry import DetectorArray, Mask
 from rotmod.materials import Material
 from rotmod.response import build_response
 from rotmod.sky import SkyGrid
-from rotmod.sources.spectra import expected_counts, fit_spectra, spectral_columns
+from rotmod.sources.spectra import (
+    SpectralColumns,
+    expected_counts,
+    fit_spectra,
+    spectral_columns,
+)
 from rotmod.spectral import Band, PowerLaw
 from rotmod.spectral.detector import tabulate_response
 
@@ -40,6 +45,27 @@ def wilson(k: int, n: int, z: float = 2.0) -> tuple[float, float]:
     return c - h, c + h
 
 
+def survey(photons: int, positions: tuple, n_bins: int = 60
+           ) -> tuple[SpectralColumns, np.ndarray]:
+    """The survey instrument's energy-resolved columns for sources at ``positions`` (64
+    nodes, 32 channels) and the background rate per channel (counts/s per detector)."""
+    hexa = DetectorArray.hexagonal(5.0, rings=3)
+    det = DetectorArray(hexa.positions, 5.0, thickness=5.0,
+                        material=Material("NaI", density=3.67))
+    inst = Instrument(Mask(3.0, 3.0, 3.0, 100.0), det, rotation_period=60.0)
+    resp = build_response(inst, SkyGrid.square(4, 1.0), n_bins, energy=300.0)
+    nodes = np.geomspace(60.0, 3000.0, 64)
+    channels = np.geomspace(50.0, 2500.0, 33)
+    dr = tabulate_response(det, nodes, [0.0, 5.0, 10.0], channels,
+                           resolution=EnergyResolution.nai(), n_photons=photons, seed=1)
+    cols = spectral_columns(resp, positions, dr)
+    # Background per detector and channel: a falling continuum, ~2 counts/s per detector in
+    # all (the fit does not know it).
+    ch_c = np.sqrt(channels[1:] * channels[:-1])
+    bkg_shape = (ch_c / 100.0) ** -1.3 * np.diff(channels)
+    return cols, 2.0 * bkg_shape / bkg_shape.sum()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=200, help="realisations of the steady source")
@@ -48,23 +74,10 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="JSON file for the pulls")
     args = ap.parse_args()
     t0 = time.time()
-    hexa = DetectorArray.hexagonal(5.0, rings=3)
-    det = DetectorArray(hexa.positions, 5.0, thickness=5.0,
-                        material=Material("NaI", density=3.67))
-    inst = Instrument(Mask(3.0, 3.0, 3.0, 100.0), det, rotation_period=60.0)
     n_bins = 60
-    resp = build_response(inst, SkyGrid.square(4, 1.0), n_bins, energy=300.0)
-    nodes = np.geomspace(60.0, 3000.0, 64)
-    channels = np.geomspace(50.0, 2500.0, 33)
-    dr = tabulate_response(det, nodes, [0.0, 5.0, 10.0], channels,
-                           resolution=EnergyResolution.nai(), n_photons=args.photons, seed=1)
-    cols = spectral_columns(resp, (8.0, 40.0), dr)
+    cols, bkg = survey(args.photons, (8.0, 40.0), n_bins)
+    nodes = cols.energies
     t_setup = time.time() - t0
-    # Background per detector and channel: a falling continuum, ~2 counts/s per detector in
-    # all (the fit does not know it).
-    ch_c = np.sqrt(channels[1:] * channels[:-1])
-    bkg_shape = (ch_c / 100.0) ** -1.3 * np.diff(channels)
-    bkg = 2.0 * bkg_shape / bkg_shape.sum()
     burst = (Band(0.03, -1.0, 300.0, -2.5), Band(0.02, -1.2, 400.0, -2.2),
              np.full(n_bins, 1.0))
     # name: (truth, start, exposure per bin, seconds of background measured off the burst,
@@ -125,9 +138,15 @@ def main() -> None:
                                  "source_counts": float(src),
                                  "background_counts": float(mu.sum() - src),
                                  "median_fit_s": float(np.median(times))}
-    print(f"\nload average {os.getloadavg()}")
-    if args.out:
-        with open(args.out, "w") as f:
+    save(report, args.out)
+
+
+def save(report: dict, out: str | None) -> None:
+    """Print the load average now and write ``report`` (with it, ``load_end``) as JSON."""
+    report["load_end"] = os.getloadavg()
+    print(f"\nload average {report['load_end']}")
+    if out:
+        with open(out, "w") as f:
             json.dump(report, f, indent=1)
 
 

@@ -26,7 +26,7 @@ from rotmod.sky import Attitude, CelestialGrid, HealpixGrid, PointSources, SkyGe
 from rotmod.sources import Detection, FitResult, PointSource, Region, SkyModel, TSMap
 from rotmod.sources.catalogue import probability_map
 from rotmod.sources.lightcurve import LightCurve
-from rotmod.spectral import CountsSpectrum, PowerLaw
+from rotmod.spectral import CountsSpectrum, PowerLaw, RateSpectrum
 from rotmod.testing import MatrixOperator, tiny_instrument
 from tests.conftest import rad
 from tests.spectral.test_spectrum import gaussian_response
@@ -106,6 +106,18 @@ def ogip_spectrum(seed: int = 1) -> CountsSpectrum:
     return CountsSpectrum(counts, 1e4, r, bkg, meta={"OBJECT": "test source"})
 
 
+def ogip_rate_spectrum(seed: int = 1) -> RateSpectrum:
+    """An E^-2 source's rates with Gaussian errors (as a fit extracts them: values that can
+    be negative, errors that are not their square roots): ~4e4 source counts, each channel's
+    error that of the source on a background of 100 counts."""
+    r = gaussian_response()
+    rng = np.random.default_rng(seed)
+    counts = r.fold(PowerLaw(1e-4, -2.0), 1e4)
+    error = np.sqrt(counts + 100.0) / 1e4
+    return RateSpectrum(counts / 1e4 + error * rng.standard_normal(48), error, 1e4, r,
+                        meta={"OBJECT": "test source"})
+
+
 def write_products(folder: Path, **provenance) -> dict[str, Path]:
     """Write one product of each kind into ``folder``; ``provenance`` goes to every writer."""
     inst = tiny_instrument(diameter=3.8, rotation_period=30.0)
@@ -129,6 +141,8 @@ def write_products(folder: Path, **provenance) -> dict[str, Path]:
         "OGIP background": folder / "src_bkg.pha",
         "OGIP RMF": folder / "src.rmf",
         "OGIP ARF": folder / "src.arf",
+        "OGIP rate spectrum": write_ogip(ogip_rate_spectrum(), folder / "rate.pha",
+                                         **provenance),
         "catalogue": write_detection(det, folder / "cat.fits", **provenance),
         "instrument catalogue": write_catalogue(results["instrument fit"], folder / "icat.fits",
                                                 **provenance),

@@ -17,7 +17,7 @@ pytestmark = pytest.mark.skipif(FITSVERIFY is None,
 KINDS = ("events", "pointed events", "folded", "instrument image", "celestial image",
          "healpix image", "catalogue", "instrument catalogue", "instrument TS map",
          "celestial TS map", "healpix TS map", "probability map", "light curve",
-         "OGIP spectrum", "OGIP background", "OGIP RMF", "OGIP ARF")
+         "OGIP spectrum", "OGIP background", "OGIP RMF", "OGIP ARF", "OGIP rate spectrum")
 
 
 def _verify(path) -> tuple[int, int, str]:

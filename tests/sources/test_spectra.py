@@ -1,11 +1,13 @@
 """Spectra of sources on the modulator's counts: the energy-resolved response's normalisation
-against the detector Monte Carlo, and forward-folded fits that recover injected spectra."""
+against the detector Monte Carlo, forward-folded fits that recover injected spectra, and
+per-source spectra extracted channel by channel with their response."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+import rotmod.io
 from rotmod import Instrument
 from rotmod.energy import EnergyResolution
 from rotmod.errors import ParameterError
@@ -15,13 +17,16 @@ from rotmod.materials import Material
 from rotmod.montecarlo import simulate_observation
 from rotmod.response import build_response
 from rotmod.sky import PointSources, SkyGrid
+from rotmod.sources.likelihood import Groups, maximise
 from rotmod.sources.spectra import (
+    SpectralColumns,
     expected_counts,
+    extract_spectrum,
     fit_spectra,
     fold_channels,
     spectral_columns,
 )
-from rotmod.spectral import Band, PowerLaw
+from rotmod.spectral import Band, Gaussian, PowerLaw, RateSpectrum, fit_spectrum
 from rotmod.spectral.detector import tabulate_response
 
 NAI = Material("NaI", density=3.67)
@@ -46,9 +51,19 @@ def detector_response():
 
 
 @pytest.fixture(scope="module")
-def columns(detector_response):
+def two_sources(detector_response):
+    """Two sources 5 deg and 3 deg off axis on opposite sides, 24 mask-angle bins."""
     resp = build_response(_instrument(), SkyGrid.square(4, 1.0), 24, energy=300.0)
-    return spectral_columns(resp, (5.0, 30.0), detector_response)
+    return spectral_columns(resp, ([5.0, 3.0], [30.0, 200.0]), detector_response)
+
+
+@pytest.fixture(scope="module")
+def columns(two_sources):
+    """The first of them alone (its columns are computed per source: the same numbers as
+    ``spectral_columns(resp, (5.0, 30.0), ...)``, bit for bit, without a second build)."""
+    c = two_sources
+    return SpectralColumns(c.columns[:1], c.redistribution[:1], c.energies, c.channel_edges,
+                           c.theta[:1])
 
 
 def test_transparent_mask_gives_the_detector_monte_carlo(detector_response) -> None:
@@ -190,3 +205,131 @@ def test_bad_input(columns, detector_response) -> None:
     with pytest.raises(ParameterError, match="fixed attenuation coefficient"):
         spectral_columns(build_response(fixed, SkyGrid.square(2, 1.0), 6, energy=300.0),
                          (1.0, 0.0), detector_response)
+
+
+# Per-source spectra extracted channel by channel (extract_spectrum).
+
+TRUTH = (PowerLaw(1e-3, -1.5), PowerLaw(5e-4, -2.5))
+
+
+def _folded_rate(spec, model) -> np.ndarray:
+    return spec.response.fold(model, spec.exposure) / spec.exposure
+
+
+def test_extraction_on_asimov_data_is_the_folded_model(two_sources) -> None:
+    """Expected counts as data (two sources and a background per detector and channel):
+
+    * with every source's pattern from its true spectrum, the extracted rate is the source's
+      own rate in each channel (its expected counts over all detectors and bins / live time,
+      computed from the columns without the extraction) to rounding;
+    * with the extracted source's pattern from a wrong spectrum (E^-2 for E^-1.5) the rate
+      differs from that by more than 0.5 % (the pattern changes across a channel), but it is
+      still what the response returned predicts: folding the true spectrum through it gives
+      the extracted rate -- the response is exact for the extracted source's spectrum,
+      whatever shaped the weights;
+    * the response's only approximation is its tabulation between the nodes (midpoint rule on
+      ``subdivide`` bins of a response linear in ln E): second order, so the difference
+      shrinks 4x per doubling (measured 2.3e-3, 5.8e-4, 1.4e-4, 3.6e-5 for 1, 2, 4, 8);
+      asserted: below 3e-4 at the default 4 and at least 3x smaller at 8.
+    """
+    expo = np.full(24, 500.0)
+    mu = expected_counts(two_sources, expo, list(TRUTH), background=0.04)
+    spec = extract_spectrum(two_sources, mu, expo, 0, models=TRUTH)
+    own = np.einsum("dtc,t->c", two_sources.rates(0, TRUTH[0]), expo) / spec.exposure
+    assert spec.exposure == 24 * 500.0
+    np.testing.assert_allclose(spec.rate, own, rtol=1e-10)
+    wrong = extract_spectrum(two_sources, mu, expo, 0, models=[PowerLaw(), TRUTH[1]])
+    assert np.max(np.abs(wrong.rate / own - 1.0)) > 5e-3
+    for s in (spec, wrong):
+        err4 = np.max(np.abs(_folded_rate(s, TRUTH[0]) / s.rate - 1.0))
+        assert err4 < 3e-4
+    fine = extract_spectrum(two_sources, mu, expo, 0, models=[PowerLaw(), TRUTH[1]],
+                            subdivide=8)
+    np.testing.assert_array_equal(fine.rate, wrong.rate)  # subdivide changes the response only
+    assert np.max(np.abs(_folded_rate(fine, TRUTH[0]) / fine.rate - 1.0)) < err4 / 3
+    # The other source, extracted from the same counts, is its own too; and so is the first
+    # with the background also measured off the sources (one more bin per level).
+    other = extract_spectrum(two_sources, mu, expo, 1, models=TRUTH)
+    own1 = np.einsum("dtc,t->c", two_sources.rates(1, TRUTH[1]), expo) / spec.exposure
+    np.testing.assert_allclose(other.rate, own1, rtol=1e-10)
+    off = np.full(two_sources.shape[::2], 0.04 * 3000.0)
+    with_off = extract_spectrum(two_sources, mu, expo, 0, models=TRUTH, off_counts=off,
+                                off_exposure=3000.0)
+    np.testing.assert_allclose(with_off.rate, own, rtol=1e-10)
+    assert np.all(with_off.error < spec.error)  # the levels are better known
+
+
+def test_extraction_is_the_channel_likelihood_maximum(two_sources) -> None:
+    """On Poisson counts the extracted rate is the maximum of each channel's Poisson
+    likelihood over the source's amplitude, the other amplitudes profiled (where none is at
+    its bound): moving it by a tenth of its error and refitting the rest lowers ln L by
+    ~(0.1)^2 / 2 = 0.005 on both sides (asserted 0.003-0.007: the quadratic approximation
+    at this step is good to a few per cent), and its error is the curvature's."""
+    expo = np.full(24, 500.0)
+    y = np.random.default_rng(5).poisson(
+        expected_counts(two_sources, expo, list(TRUTH), background=0.04))
+    spec = extract_spectrum(two_sources, y, expo, 0, models=TRUTH)
+    n_det, n_t, _ = two_sources.shape
+    live = 24 * 500.0
+    c = 6
+    tmpl = [two_sources.rates(j, m)[..., c] * expo for j, m in enumerate(TRUTH)]
+    cols = np.stack([t.ravel() * live / t.sum() for t in tmpl], axis=1)  # per count/s
+    groups = Groups(np.repeat(np.arange(n_det), n_t), np.tile(expo, n_det), n_det)
+    yc = y[..., c].ravel().astype(float)
+    best = maximise(cols, yc, groups=groups)
+    assert np.all(best.x > 0)
+    assert spec.rate[c] == pytest.approx(best.x[0], rel=1e-7)
+    for sign in (-1.0, 1.0):
+        x0 = spec.rate[c] + sign * 0.1 * spec.error[c]
+        held = maximise(cols[:, 1:], yc, cols[:, 0] * x0, groups=groups)
+        assert 0.003 < best.loglike - held.loglike < 0.007
+
+
+def test_extracted_spectrum_fits_as_the_joint_fit(two_sources, tmp_path) -> None:
+    """One Poisson realisation of the two sources on a background: the chi-square fit of
+    the extracted spectrum, read back from its OGIP files, recovers the injected index
+    within 3 sigma and agrees with the Poisson fit of all the counts (fit_spectra) within
+    0.3 of the latter's error (benchmarks/spectra_extraction.py: the two differ by 0.05
+    sigma rms, at most 0.12, over 200 realisations of the survey instrument; measured here
+    0.016), with an error within 2 % (measured 0.1 %).
+    The default E^-2 patterns are used for both sources (the second is E^-2.5)."""
+    expo = np.full(24, 500.0)
+    y = np.random.default_rng(11).poisson(
+        expected_counts(two_sources, expo, list(TRUTH), background=0.04))
+    spec = extract_spectrum(two_sources, y, expo, 0)
+    path = rotmod.io.write(spec, tmp_path / "src.pha")
+    back = rotmod.io.read(path)
+    ext = fit_spectrum(back, PowerLaw(2e-3, -2.0))
+    joint = fit_spectra(two_sources, y, expo, [PowerLaw(2e-3, -2.0), PowerLaw(1e-3, -2.0)])
+    assert ext.converged and ext.stat_name == "chi2"
+    err = joint.errors[0]["index"]
+    assert abs(ext.model.index - TRUTH[0].index) < 3 * ext.errors["index"]
+    assert abs(ext.model.index - joint.models[0].index) < 0.3 * err
+    assert ext.errors["index"] == pytest.approx(err, rel=0.02)
+    # The chi-square is a goodness of fit: within 4 sigma of its 22 degrees of freedom.
+    assert abs(ext.statistic - 22) < 4 * np.sqrt(44)
+
+
+def test_extraction_bad_input(two_sources) -> None:
+    expo = np.full(24, 500.0)
+    y = np.zeros(two_sources.shape)
+    for source in (2, -1, True, 1.0):
+        with pytest.raises(ParameterError, match=r"source must be the index of one of the 2"):
+            extract_spectrum(two_sources, y, expo, source)
+    with pytest.raises(ParameterError, match="counts must have shape"):
+        extract_spectrum(two_sources, y[:, :, :-1], expo, 0)
+    with pytest.raises(ParameterError, match="counts must be finite and non-negative"):
+        extract_spectrum(two_sources, -np.ones(two_sources.shape), expo, 0)
+    with pytest.raises(ParameterError, match="one spectrum per source"):
+        extract_spectrum(two_sources, y, expo, 0, models=[PowerLaw()])
+    with pytest.raises(ParameterError, match="exposure"):
+        extract_spectrum(two_sources, y, np.ones(5), 0)
+    with pytest.raises(ParameterError, match="subdivide must be an integer >= 1"):
+        extract_spectrum(two_sources, y, expo, 0, subdivide=0)
+    with pytest.raises(ParameterError, match="columns must be SpectralColumns"):
+        extract_spectrum(y, y, expo, 0)
+    with pytest.raises(ParameterError, match=r"models\[1\] puts no counts of source 1"):
+        extract_spectrum(two_sources, y, expo, 0,
+                         models=[PowerLaw(), Gaussian(1e-3, 5000.0, 10.0)])
+    with pytest.raises(ParameterError, match="error must be"):
+        RateSpectrum([1.0, 2.0], [1.0, 0.0], 10.0)

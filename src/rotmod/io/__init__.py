@@ -12,6 +12,7 @@ Each format is registered once, for the class it holds (:mod:`rotmod.io.registry
     rotmod.io.write(detection.ts_map, "ts.fits")  # TS map, FITS (rotmod.io.tsmaps)
     rotmod.io.write(light_curve, "lc.ecsv")       # light curve, FITS or ECSV (rotmod.io.tables)
     rotmod.io.write(spectrum, "src.pha")          # OGIP PHA + RMF + ARF (+ bkg) (rotmod.io.ogip)
+                                                  # (counts, or rates with STAT_ERR)
     obj = rotmod.io.read("obs.fits")              # whatever the file holds
 
 The functions registered are the one implementation of each format; the older entry points
@@ -43,13 +44,13 @@ from rotmod.io.config import (
 )
 from rotmod.io.events import read_events, read_folded, write_events, write_folded
 from rotmod.io.images import FitsImage, read_image, write_image
-from rotmod.io.ogip import read_ogip, write_ogip
+from rotmod.io.ogip import poisson_errors, read_ogip, write_ogip
 from rotmod.io.regions import HealpixProbability, read_probability_map, write_probability_map
 from rotmod.io.registry import FileFormat, formats, read, register, write
 from rotmod.io.tables import read_attitude_table, write_attitude_table, write_light_curve
 from rotmod.io.tsmaps import TSMapFile, read_ts_map, write_ts_map
 from rotmod.sky.attitude import AttitudeTable
-from rotmod.spectral.spectrum import CountsSpectrum
+from rotmod.spectral.spectrum import CountsSpectrum, RateSpectrum
 
 __all__ = [
     "FileFormat",
@@ -75,6 +76,21 @@ def _fits_identify(hdu: str) -> Callable[[Path], bool]:
             with fits.open(path) as hdul:
                 return hdu in hdul
         except (OSError, ValueError):
+            return False
+
+    return identify
+
+
+def _ogip_identify(poisson: bool) -> Callable[[Path], bool]:
+    """``identify(path)``: whether an OGIP PHA file holds Poisson counts (``poisson``) or
+    rates with Gaussian errors (:func:`rotmod.io.ogip.poisson_errors`)."""
+
+    def identify(path: Path) -> bool:
+        try:
+            with fits.open(path) as hdul:
+                ext = hdul["SPECTRUM"]
+                return poisson_errors(ext.header, ext.columns.names) == poisson
+        except (OSError, ValueError, KeyError):
             return False
 
     return identify
@@ -139,4 +155,7 @@ register(TSMapFile, "fits", reader=read_ts_map, extensions=(".fits", ".fits.gz")
 register(HealpixProbability, "fits", reader=read_probability_map,
          writer=write_probability_map, extensions=(".fits", ".fits.gz"),
          identify=_fits_identify("PROBMAP"))
-register(CountsSpectrum, "ogip", reader=read_ogip, writer=write_ogip, extensions=(".pha", ".pi"))
+register(CountsSpectrum, "ogip", reader=read_ogip, writer=write_ogip, extensions=(".pha", ".pi"),
+         identify=_ogip_identify(poisson=True))
+register(RateSpectrum, "ogip", reader=read_ogip, writer=write_ogip, extensions=(".pha", ".pi"),
+         identify=_ogip_identify(poisson=False))

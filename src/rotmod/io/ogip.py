@@ -5,6 +5,7 @@ and background (PHA), as XSPEC, sherpa, threeML and gammapy read them.
 other, the PHA naming the others in its ``RESPFILE``, ``ANCRFILE`` and ``BACKFILE`` cards::
 
     src.pha       SPECTRUM (CHANNEL, COUNTS, QUALITY, BACKSCAL), EBOUNDS  OGIP/92-007
+                  or, for a RateSpectrum, (CHANNEL, RATE, STAT_ERR, QUALITY, BACKSCAL)
     src.rmf       MATRIX (ENERG_LO, ENERG_HI, N_GRP, F_CHAN, N_CHAN, MATRIX), EBOUNDS
                   CAL/GEN/92-002
     src.arf       SPECRESP (ENERG_LO, ENERG_HI, SPECRESP)  CAL/GEN/92-002
@@ -12,7 +13,12 @@ other, the PHA naming the others in its ``RESPFILE``, ``ANCRFILE`` and ``BACKFIL
 
 Conventions: channels are numbered from 0 (``TLMIN`` = 0, as gammapy assumes); the RMF is of
 type ``REDIST`` (probabilities, the area in the ARF); counts are integers with Poisson errors
-(``POISSERR = T``).  ``BACKSCAL`` and ``QUALITY`` are columns as well as the usual cards,
+(``POISSERR = T``).  A :class:`rotmod.spectral.RateSpectrum` (a source's spectrum extracted by
+a fit, :func:`rotmod.sources.spectra.extract_spectrum`) is written as Swift-BAT writes its
+mask-weighted spectra: ``RATE`` and ``STAT_ERR`` (counts/s) with ``POISSERR = F``
+(``HDUCLAS3 = RATE``), and no background file (the fit has removed the background); a tool that
+cannot honour ``STAT_ERR`` then fails to read it rather than fitting Poisson statistics to it.
+``BACKSCAL`` and ``QUALITY`` are columns as well as the usual cards,
 because gammapy reads them as columns.  Every file carries rotmod's provenance cards and
 checksums; all four are written atomically together (either all appear or none).
 """
@@ -31,9 +37,9 @@ from rotmod.errors import ParameterError
 from rotmod.io._fits import open_verified
 from rotmod.io.atomic import atomic_path, check_overwrite
 from rotmod.io.images import add_meta_cards, stamp_header
-from rotmod.spectral.spectrum import CountsSpectrum, SpectralResponse
+from rotmod.spectral.spectrum import CountsSpectrum, RateSpectrum, SpectralResponse
 
-__all__ = ["ogip_paths", "read_ogip", "write_ogip"]
+__all__ = ["ogip_paths", "poisson_errors", "read_ogip", "write_ogip"]
 
 #: Cards every OGIP spectral extension carries.
 _MISSION = {"TELESCOP": "ROTMOD", "INSTRUME": "RM", "FILTER": "NONE"}
@@ -75,24 +81,31 @@ def _cards(h: fits.Header, clas1: str, clas2: str, vers: str, *, detchans: int) 
     h["DETCHANS"] = (detchans, "number of channels")
 
 
-def _spectrum_hdu(spec: CountsSpectrum, clas2: str, files: dict[str, str]) -> fits.BinTableHDU:
-    n = spec.counts.size
+def _spectrum_hdu(spec: CountsSpectrum | RateSpectrum, clas2: str, files: dict[str, str]
+                  ) -> fits.BinTableHDU:
+    poisson = isinstance(spec, CountsSpectrum)
+    backscal = spec.backscal if poisson else 1.0
+    n = spec.counts.size if poisson else spec.rate.size
+    values = [fits.Column("COUNTS", "J", unit="count", array=spec.counts)] if poisson else [
+        fits.Column("RATE", "D", unit="count/s", array=spec.rate),
+        fits.Column("STAT_ERR", "D", unit="count/s", array=spec.error)]
     cols = [
         fits.Column("CHANNEL", "J", array=np.arange(n)),
-        fits.Column("COUNTS", "J", unit="count", array=spec.counts),
+        *values,
         fits.Column("QUALITY", "I", array=np.zeros(n, dtype=np.int16)),
-        fits.Column("BACKSCAL", "D", array=np.full(n, spec.backscal)),
+        fits.Column("BACKSCAL", "D", array=np.full(n, backscal)),
     ]
     hdu = fits.BinTableHDU.from_columns(cols, name="SPECTRUM")
     h = hdu.header
     h["TLMIN1"], h["TLMAX1"] = 0, n - 1
     _cards(h, "SPECTRUM", clas2, "1.2.1", detchans=n)
-    h["HDUCLAS3"] = "COUNT"
+    h["HDUCLAS3"] = "COUNT" if poisson else "RATE"
     h["EXPOSURE"] = (spec.exposure, "[s] live time")
     h["AREASCAL"] = 1.0
-    h["BACKSCAL"] = (spec.backscal, "background scaling (also a column)")
+    h["BACKSCAL"] = (backscal, "background scaling (also a column)")
     h["CORRSCAL"] = 0.0
-    h["POISSERR"] = (True, "Poisson errors")
+    h["POISSERR"] = (True, "Poisson errors") if poisson else (
+        False, "errors in STAT_ERR (fitted, not Poisson)")
     h["SYS_ERR"] = 0.0
     h["GROUPING"] = 0
     for key in ("RESPFILE", "ANCRFILE", "BACKFILE", "CORRFILE"):
@@ -103,7 +116,7 @@ def _spectrum_hdu(spec: CountsSpectrum, clas2: str, files: dict[str, str]) -> fi
 
 
 def write_ogip(
-    spectrum: CountsSpectrum, path: str | os.PathLike, *, overwrite: bool = False,
+    spectrum: CountsSpectrum | RateSpectrum, path: str | os.PathLike, *, overwrite: bool = False,
     seed: Any = None, command: Any = None,
 ) -> Path:
     """Write ``spectrum`` as OGIP files: ``path`` (PHA) with its RMF, ARF and background PHA
@@ -111,8 +124,9 @@ def write_ogip(
 
     Parameters
     ----------
-    spectrum : CountsSpectrum
-        With a response (the RMF and ARF come from it).
+    spectrum : CountsSpectrum or RateSpectrum
+        With a response (the RMF and ARF come from it).  A RateSpectrum is written as
+        ``RATE`` and ``STAT_ERR`` with ``POISSERR = F``.
     path : str or path-like
         The PHA file (``.pha`` or ``.pi``).
     overwrite : bool
@@ -125,12 +139,13 @@ def write_ogip(
     pathlib.Path
         The PHA file.
     """
-    if not isinstance(spectrum, CountsSpectrum):
-        raise ParameterError(f"spectrum must be a CountsSpectrum, got {type(spectrum).__name__}")
+    if not isinstance(spectrum, CountsSpectrum | RateSpectrum):
+        raise ParameterError("spectrum must be a CountsSpectrum or a RateSpectrum, got "
+                             f"{type(spectrum).__name__}")
     if spectrum.response is None:
         raise ParameterError("spectrum has no response: an OGIP spectrum needs its RMF and ARF")
     paths = ogip_paths(path)
-    if spectrum.background is None:
+    if not isinstance(spectrum, CountsSpectrum) or spectrum.background is None:
         paths.pop("bkg")
     for key, p in paths.items():
         check_overwrite(p, overwrite, parameter=f"the {key.upper()} file" if key != "pha"
@@ -195,19 +210,49 @@ def write_ogip(
     return paths["pha"]
 
 
-def _spectrum_from(hdul: fits.HDUList, path: Path) -> tuple[np.ndarray, float, float, Any]:
-    """Counts, exposure, backscal and header of a type I COUNTS spectrum; what rotmod cannot
-    honour (per-channel scaling, bad-quality channels, grouping) is refused by name rather
-    than dropped."""
+def poisson_errors(header: fits.Header, columns: Any) -> bool:
+    """Whether a SPECTRUM extension's errors are Poisson: its ``POISSERR`` card, or without
+    one, the absence of ``STAT_ERR`` (as a column among ``columns`` or a card)."""
+    return bool(header.get("POISSERR", "STAT_ERR" not in columns and "STAT_ERR" not in header))
+
+
+def _spectrum_from(hdul: fits.HDUList, path: Path
+                   ) -> tuple[np.ndarray, np.ndarray | None, float, float, Any]:
+    """Values, errors, exposure, backscal and header of a type I spectrum: Poisson ``COUNTS``
+    (errors None), or with ``POISSERR = F`` rates and their ``STAT_ERR`` (counts/s; a
+    ``COUNTS`` column is divided by the exposure).  What rotmod cannot honour (per-channel
+    scaling, bad-quality channels, grouping, systematic errors, Gaussian data without
+    errors, Poisson rates) is refused by name rather than dropped."""
     if "SPECTRUM" not in hdul:
         raise ParameterError(f"file {str(path)!r} has no SPECTRUM extension (not an OGIP PHA)")
     h = hdul["SPECTRUM"].header
     d = hdul["SPECTRUM"].data
     names = d.columns.names
-    if "COUNTS" not in names:
-        raise ParameterError(f"file {str(path)!r}: only COUNTS spectra are read (no RATE)")
+    value = next((c for c in ("COUNTS", "RATE") if c in names), None)
+    if value is None:
+        raise ParameterError(f"file {str(path)!r}: the SPECTRUM has neither a COUNTS nor a "
+                             "RATE column (a type II spectrum?)")
     if "EXPOSURE" not in h:
         raise ParameterError(f"file {str(path)!r}: the SPECTRUM header has no EXPOSURE")
+    exposure = float(h["EXPOSURE"])
+    poisson = poisson_errors(h, names)
+    if poisson and value == "RATE":
+        raise ParameterError(f"file {str(path)!r}: a RATE spectrum with Poisson errors "
+                             "(POISSERR = T); rotmod reads Poisson spectra as COUNTS")
+    errors = None
+    if not poisson:
+        if "STAT_ERR" in names:
+            errors = np.asarray(d["STAT_ERR"], dtype=float)
+        elif "STAT_ERR" in h:
+            errors = np.full(len(d), float(h["STAT_ERR"]))
+        if errors is None or not np.all(np.isfinite(errors) & (errors > 0)):
+            raise ParameterError(f"file {str(path)!r}: POISSERR = F needs errors > 0 in "
+                                 "STAT_ERR for every channel")
+    sys_err = np.asarray(d["SYS_ERR"], dtype=float) if "SYS_ERR" in names else np.array(
+        [h.get("SYS_ERR", 0.0)], dtype=float)
+    if np.any(sys_err != 0):
+        raise ParameterError(f"file {str(path)!r}: systematic errors (SYS_ERR != 0), which "
+                             "rotmod's fits do not add")
     scal = {}
     for key in ("BACKSCAL", "AREASCAL"):
         v = np.asarray(d[key], dtype=float) if key in names else np.array([h.get(key, 1.0)])
@@ -226,22 +271,32 @@ def _spectrum_from(hdul: fits.HDUList, path: Path) -> tuple[np.ndarray, float, f
         if key == "GROUPING" and np.any((v != 0) & (v != 1)):
             raise ParameterError(f"file {str(path)!r}: grouped channels (GROUPING); rotmod "
                                  "fits channels one by one")
-    return np.asarray(d["COUNTS"]), float(h["EXPOSURE"]), scal["BACKSCAL"], h
+    values = np.asarray(d[value])
+    if errors is not None and value == "COUNTS":
+        values, errors = values / exposure, errors / exposure
+    return values, errors, exposure, scal["BACKSCAL"], h
 
 
-def read_ogip(path: str | os.PathLike) -> CountsSpectrum:
+def read_ogip(path: str | os.PathLike) -> CountsSpectrum | RateSpectrum:
     """Read a PHA file and the RMF, ARF and background its cards name (in its folder).
+
+    Returns
+    -------
+    CountsSpectrum or RateSpectrum
+        Poisson counts (``POISSERR = T``), or rates with Gaussian errors (``POISSERR = F``
+        and ``STAT_ERR``).
 
     Raises
     ------
     RotmodError
         A missing, unreadable or corrupt file.
     ParameterError
-        A file that is not an OGIP spectrum rotmod can read (type I, COUNTS).
+        A file that is not an OGIP spectrum rotmod can read (type I; COUNTS, or RATE or
+        COUNTS with STAT_ERR), or asks for what rotmod cannot honour.
     """
     p = Path(path)
     with open_verified(p) as hdul:
-        counts, exposure, backscal, h = _spectrum_from(hdul, p)
+        counts, errors, exposure, backscal, h = _spectrum_from(hdul, p)
         names = {k: str(h.get(k, "none")).strip() for k in ("RESPFILE", "ANCRFILE", "BACKFILE")}
         meta = {k: h[k] for k in ("TELESCOP", "INSTRUME", "OBS_ID", "OBJECT") if k in h}
     resp = None
@@ -286,8 +341,16 @@ def read_ogip(path: str | os.PathLike) -> CountsSpectrum:
         resp = SpectralResponse(energy_edges, channel_edges, matrix, area)
     background = None
     if names["BACKFILE"].lower() != "none":
+        if errors is not None:
+            raise ParameterError(f"file {str(p)!r}: a background file ({names['BACKFILE']!r}) "
+                                 "with Gaussian rates; rotmod fits rates with the background "
+                                 "already removed")
         bp = p.parent / names["BACKFILE"]
         with open_verified(bp) as bkg:
-            b_counts, b_exp, b_scal, _ = _spectrum_from(bkg, bp)
+            b_counts, b_errors, b_exp, b_scal, _ = _spectrum_from(bkg, bp)
+        if b_errors is not None:
+            raise ParameterError(f"file {str(bp)!r}: a background must be Poisson counts")
         background = CountsSpectrum(b_counts, b_exp, backscal=b_scal)
+    if errors is not None:
+        return RateSpectrum(counts, errors, exposure, resp, meta)
     return CountsSpectrum(counts, exposure, resp, background, backscal, meta)

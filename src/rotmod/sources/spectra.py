@@ -20,6 +20,12 @@ trial of the spectral parameters the backgrounds are profiled out exactly
 (:func:`rotmod.sources.likelihood.maximise`), and the spectral parameters minimise ``-2 ln L``
 (:func:`rotmod.spectral.minimise_statistic`, the one optimiser of every spectral fit).
 
+:func:`extract_spectrum` makes one source's spectrum as a coded-mask pipeline does: per
+channel, its rate fitted with the other sources and the background, its error, and the
+response (ARF and RMF) that predicts the extracted rate from a photon spectrum -- a
+:class:`rotmod.spectral.RateSpectrum` for chi-square fits and OGIP files (docs/spectra.md
+derives the response).
+
 Approximations, stated: the redistribution of a detector is the one of a uniformly lit face
 (the mask's shadow changes which part of the crystal is lit, which changes the escape
 probabilities slightly); between nodes the columns and the redistribution are taken as linear
@@ -42,14 +48,19 @@ from rotmod.events import EventList, fold
 from rotmod.limits import check_memory
 from rotmod.response.columns import columns_at, position_grid
 from rotmod.response.operator import ResponseOperator
-from rotmod.sources.likelihood import Groups, maximise
+from rotmod.sources.likelihood import Groups, _schur, maximise
 from rotmod.spectral.detector import DetectorResponse
-from rotmod.spectral.models import SpectralModel
-from rotmod.spectral.spectrum import check_edges, minimise_statistic
+from rotmod.spectral.models import PowerLaw, SpectralModel
+from rotmod.spectral.spectrum import (
+    RateSpectrum,
+    SpectralResponse,
+    check_edges,
+    minimise_statistic,
+)
 
 __all__ = [
-    "SourceSpectraFit", "SpectralColumns", "expected_counts", "fit_spectra", "fold_channels",
-    "spectral_columns",
+    "SourceSpectraFit", "SpectralColumns", "expected_counts", "extract_spectrum", "fit_spectra",
+    "fold_channels", "spectral_columns",
 ]
 
 
@@ -268,45 +279,10 @@ def fit_spectra(
     -------
     SourceSpectraFit
     """
-    if not isinstance(columns, SpectralColumns):
-        raise ParameterError(f"columns must be SpectralColumns, got {type(columns).__name__}")
-    n_det, n_t, n_c = columns.shape
-    y = np.asarray(counts)
-    if y.shape != (n_det, n_t, n_c):
-        raise ParameterError(f"counts must have shape (n_det, n_time, n_channels) = "
-                             f"{(n_det, n_t, n_c)}, got {y.shape}")
-    if not np.all(np.isfinite(y)) or np.any(y < 0) or np.any(y != np.round(y)):
-        raise ParameterError("counts must be non-negative integers")
-    expo = _exposure(exposure, n_det, n_t)
-    if len(models) != columns.columns.shape[0]:
-        raise ParameterError(f"models must give one spectrum per source "
-                             f"({columns.columns.shape[0]}), got {len(models)}")
-    use = np.broadcast_to((expo > 0)[:, :, None], y.shape).ravel()
-    yv = y.astype(float).ravel()[use]
-    t3 = np.broadcast_to(expo[:, :, None], y.shape).ravel()[use]
-    group = (np.arange(n_det)[:, None, None] * n_c + np.arange(n_c)[None, None, :])
-    g_index = np.broadcast_to(group, y.shape).ravel()[use]
-    n_on = yv.size
-    if off_counts is not None:
-        off = np.asarray(off_counts)
-        if off.shape != (n_det, n_c) or not np.all(np.isfinite(off)) or np.any(
-                off < 0) or np.any(off != np.round(off)):
-            raise ParameterError(f"off_counts must be non-negative integers of shape "
-                                 f"(n_det, n_channels) = {(n_det, n_c)}")
-        if off_exposure is None:
-            raise ParameterError("off_exposure (s) is required with off_counts")
-        try:
-            t_off = np.broadcast_to(np.asarray(off_exposure, dtype=float), (n_det,))
-        except (TypeError, ValueError):
-            t_off = np.array([np.nan])
-        if not np.all(np.isfinite(t_off)) or np.any(t_off <= 0):
-            raise ParameterError("off_exposure must be finite seconds > 0 (one, or one per "
-                                 "detector)")
-        # One more bin per level: its off counts, expected level x off time.
-        yv = np.concatenate([yv, off.ravel().astype(float)])
-        t3 = np.concatenate([t3, np.repeat(t_off, n_c)])
-        g_index = np.concatenate([g_index, group.ravel()])
-    groups = Groups(g_index, t3, n_det * n_c)
+    bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure)
+    n_det, _, n_c = columns.shape
+    yv, t3, n_on, use = bins.y, bins.value, bins.n_on, bins.flat
+    groups = Groups(bins.group, t3, n_det * n_c)
     empty = np.zeros((yv.size, 0))
     state: dict[str, Any] = {"x0": None}
 
@@ -326,6 +302,231 @@ def fit_spectra(
     ll, best = profile(list(found.models))
     return SourceSpectraFit(found.models, found.errors, found.pegged, found.covariance,
                             best.x.reshape(n_det, n_c), float(ll), found.converged)
+
+
+@dataclass(frozen=True)
+class _Bins:
+    """The counts of :func:`fit_spectra` and :func:`extract_spectrum` as Poisson bins: the
+    on bins with exposure (flattened ``(n_det, n_time, n_c)`` indices ``flat``), then the
+    off-source bins, one per detector and channel; each bin's background level (``group`` =
+    ``d n_c + c``) and that level's column (its exposure, ``value``)."""
+
+    y: np.ndarray
+    value: np.ndarray
+    group: np.ndarray
+    flat: np.ndarray
+    n_on: int
+    exposure: np.ndarray
+
+
+def _poisson_bins(columns: Any, counts: Any, exposure: Any, models: Sequence[Any],
+                  off_counts: Any, off_exposure: Any, *, integer: bool = True) -> _Bins:
+    """Check the arguments shared by :func:`fit_spectra` and :func:`extract_spectrum` and
+    lay the counts out as :class:`_Bins`; a ParameterError names what is wrong.  ``integer``
+    False accepts real counts (expected counts as data, an Asimov data set)."""
+    if not isinstance(columns, SpectralColumns):
+        raise ParameterError(f"columns must be SpectralColumns, got {type(columns).__name__}")
+    n_det, n_t, n_c = columns.shape
+    y = np.asarray(counts)
+    if y.shape != (n_det, n_t, n_c):
+        raise ParameterError(f"counts must have shape (n_det, n_time, n_channels) = "
+                             f"{(n_det, n_t, n_c)}, got {y.shape}")
+    if not np.all(np.isfinite(y)) or np.any(y < 0) or (integer and np.any(y != np.round(y))):
+        raise ParameterError("counts must be non-negative integers" if integer else
+                             "counts must be finite and non-negative")
+    expo = _exposure(exposure, n_det, n_t)
+    if len(models) != columns.columns.shape[0]:
+        raise ParameterError(f"models must give one spectrum per source "
+                             f"({columns.columns.shape[0]}), got {len(models)}")
+    use = np.flatnonzero(np.broadcast_to((expo > 0)[:, :, None], y.shape))
+    yv = y.astype(float).ravel()[use]
+    t3 = np.broadcast_to(expo[:, :, None], y.shape).ravel()[use]
+    group = (np.arange(n_det)[:, None, None] * n_c + np.arange(n_c)[None, None, :])
+    g_index = np.broadcast_to(group, y.shape).ravel()[use]
+    n_on = yv.size
+    if off_counts is not None:
+        off = np.asarray(off_counts)
+        if off.shape != (n_det, n_c) or not np.all(np.isfinite(off)) or np.any(
+                off < 0) or (integer and np.any(off != np.round(off))):
+            raise ParameterError(f"off_counts must be non-negative "
+                                 f"{'integers' if integer else 'values'} of shape "
+                                 f"(n_det, n_channels) = {(n_det, n_c)}")
+        if off_exposure is None:
+            raise ParameterError("off_exposure (s) is required with off_counts")
+        try:
+            t_off = np.broadcast_to(np.asarray(off_exposure, dtype=float), (n_det,))
+        except (TypeError, ValueError):
+            t_off = np.array([np.nan])
+        if not np.all(np.isfinite(t_off)) or np.any(t_off <= 0):
+            raise ParameterError("off_exposure must be finite seconds > 0 (one, or one per "
+                                 "detector)")
+        # One more bin per level: its off counts, expected level x off time.
+        yv = np.concatenate([yv, off.ravel().astype(float)])
+        t3 = np.concatenate([t3, np.repeat(t_off, n_c)])
+        g_index = np.concatenate([g_index, group.ravel()])
+    return _Bins(yv, t3, g_index, use, n_on, expo)
+
+
+def extract_spectrum(
+    columns: SpectralColumns,
+    counts: Any,
+    exposure: Any,
+    source: int = 0,
+    *,
+    models: Sequence[SpectralModel] | None = None,
+    off_counts: Any = None,
+    off_exposure: Any = None,
+    subdivide: int = 4,
+) -> RateSpectrum:
+    """One source's spectrum extracted channel by channel, with the response that predicts it.
+
+    In each channel the folded counts are fitted (Poisson likelihood,
+    :func:`rotmod.sources.likelihood.maximise`) by every source's modulation pattern in that
+    channel, each with a free amplitude, and a background level per detector; the source's
+    amplitude is its rate (counts/s in all detectors, averaged over the rotation).  The
+    estimate is written as what it is at the maximum, a linear combination ``w . y`` of the
+    channel's counts (the weights ``(A^T V^-1 A)^-1 A^T V^-1`` of the fitted variance ``V``),
+    so that its expectation for a photon spectrum is ``sum_e F_e a_c(E_e) M(E_e -> c)``, with
+    ``a_c(E) = sum w T P(E)`` the source's column-weighted effective area (cm^2): the response
+    returned (docs/spectra.md derives it).  Coded-mask pipelines make such per-source spectra
+    (Swift-BAT's mask-weighted spectra, INTEGRAL/ISGRI's); they are fitted by chi-square
+    (:func:`rotmod.spectral.fit_spectrum`) and written as OGIP files with ``STAT_ERR`` and
+    ``POISSERR = F`` (:func:`rotmod.io.ogip.write_ogip`).
+
+    Parameters
+    ----------
+    columns : SpectralColumns
+        The sources' energy-resolved response (:func:`spectral_columns`).
+    counts : array_like, shape (n_det, n_time, n_c)
+        Counts per detector, mask-angle bin and channel (:func:`fold_channels`); expected
+        counts (an Asimov data set) are accepted too, the extraction being defined for any
+        non-negative values.
+    exposure : array_like, shape (n_time,) or (n_det, n_time)
+        Good time (s) per bin.
+    source : int
+        Which source's spectrum to extract (index into ``columns``).
+    models : sequence of SpectralModel, optional
+        One per source: the spectra that shape each source's pattern within a channel (the
+        pattern changes with energy across a channel; only the shape matters).  Default
+        ``E^-2`` for every source.  The extracted source's own spectrum only weights its
+        channels (its response is exact for any spectrum); another source's, if wrong, leaks
+        a little of it into the extracted one (second order: its pattern's change across a
+        channel, times its overlap with the extracted source's) -- give the other sources'
+        fitted spectra (:func:`fit_spectra`) where they are bright.
+    off_counts : array_like of int, shape (n_det, n_c), optional
+        Background counts measured without the sources (as :func:`fit_spectra`).
+    off_exposure : float or array_like, shape (n_det,), optional
+        Their good time (s); required with ``off_counts``.
+    subdivide : int
+        True-energy bins of the response per interval between the nodes (>= 1): the
+        response, linear in ``ln E`` between the nodes as the columns are, is tabulated at
+        their centres; 4 makes the folded rate of a smooth spectrum exact to ~1e-4.
+
+    Returns
+    -------
+    RateSpectrum
+        ``rate`` and ``error`` (counts/s) per channel, ``exposure`` the mean live time of a
+        detector (s), and the response (ARF: the redistribution-weighted mean of the
+        column-weighted area; RMF: redistribution times the column-weighted area over it).
+    """
+    if not isinstance(columns, SpectralColumns):
+        raise ParameterError(f"columns must be SpectralColumns, got {type(columns).__name__}")
+    n_src = columns.columns.shape[0]
+    if isinstance(source, bool) or not isinstance(source, int | np.integer) or not (
+            0 <= source < n_src):
+        raise ParameterError(f"source must be the index of one of the {n_src} sources "
+                             f"(0 to {n_src - 1}), got {source!r}")
+    if isinstance(subdivide, bool) or not isinstance(subdivide, int | np.integer) or (
+            subdivide < 1):
+        raise ParameterError(f"subdivide must be an integer >= 1, got {subdivide!r}")
+    if models is None:
+        models = [PowerLaw(1.0, -2.0)] * n_src
+    bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure,
+                         integer=False)
+    n_det, _, n_c = columns.shape
+    expo = bins.exposure
+    live = float(expo.sum(axis=1).mean())
+    if not live > 0:
+        raise ParameterError("exposure is 0 everywhere: nothing to extract")
+    # Each source's pattern in each channel, scaled so that its amplitude is its rate in
+    # counts/s (all detectors): expected counts = amplitude x template x exposure.
+    pattern = np.stack([columns.rates(j, m) for j, m in enumerate(models)])
+    counted = np.einsum("jdtc,dt->jc", pattern, expo)
+    if not np.all(counted > 0):
+        j, c = np.argwhere(~(counted > 0))[0]
+        raise ParameterError(f"models[{j}] puts no counts of source {j} into channel {c}: "
+                             "its pattern there is undefined (give a spectrum with photons "
+                             "at the channel's energies)")
+    template = pattern * (live / counted)[:, None, None, :]
+    n_on = bins.n_on
+    design = np.zeros((bins.y.size, n_src))
+    design[:n_on] = template.reshape(n_src, -1).T[bins.flat] * bins.value[:n_on, None]
+    channel, detector = bins.group % n_c, bins.group // n_c
+    col = columns.columns[source].reshape(columns.energies.size, -1)
+    rate, var = np.empty(n_c), np.empty(n_c)
+    area = np.empty((columns.energies.size, n_c))
+    for c in range(n_c):
+        sel = np.flatnonzero(channel == c)
+        groups = Groups(detector[sel], bins.value[sel], n_det)
+        fit = maximise(design[sel], bins.y[sel], groups=groups)
+        w, var[c] = _extraction_weights(design[sel], groups, fit.mu, source)
+        rate[c] = w @ bins.y[sel]
+        on = sel[sel < n_on]                      # the on bins come first
+        dt = bins.flat[on] // n_c                 # their (detector, time) index
+        area[:, c] = (col[:, dt] * bins.value[on]) @ w[:on.size]
+    node = area * columns.redistribution[source]
+    response = _response(columns.energies, columns.channel_edges, node,
+                         columns.redistribution[source].sum(axis=1), int(subdivide))
+    return RateSpectrum(rate, np.sqrt(var), live, response, {"OBJECT": f"source {source}"})
+
+
+def _extraction_weights(design: np.ndarray, groups: Groups, mu: np.ndarray, k: int
+                        ) -> tuple[np.ndarray, float]:
+    """The row ``k`` of ``(A^T V^-1 A)^-1 A^T V^-1`` with the background levels eliminated
+    (``A``: the sources' columns and the groups' levels), and its variance ``w V w^T``.
+
+    ``V`` is the fitted expectation ``mu``, at least half a count per detector and channel
+    (spread over its bins as its exposure): where a level and every source fit 0, ``mu`` is 0
+    and would give bins that saw nothing an infinite weight; half a count is the mean of
+    Jeffreys' posterior for a Poisson rate that saw none.
+    """
+    floor = 0.5 * groups.value / groups.sum(groups.value)[groups.index]
+    v = np.maximum(mu, floor)
+    S, Hdg, inv = _schur(design, groups, 1.0 / v, np.ones(groups.size, bool))
+    try:
+        cov = np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        raise ParameterError("the sources' patterns cannot be told apart in a channel (two "
+                             "sources at one position?)") from None
+    # A^T V^-1 less each level's projection: the columns with the background removed.
+    reduced = design - (Hdg * inv)[:, groups.index].T * groups.value[:, None]
+    return cov[k] @ (reduced / v[:, None]).T, float(cov[k, k])
+
+
+def _response(nodes: np.ndarray, channel_edges: np.ndarray, node: np.ndarray,
+              recorded: np.ndarray, subdivide: int) -> SpectralResponse:
+    """The response ``node[e, c]`` (cm^2 per photon at node ``e`` into channel ``c``) as an
+    ARF and an RMF on ``subdivide`` bins per interval between nodes, linear in ``ln E`` as the
+    columns are (so a model folded through them gives ``sum_e F_e node[e]`` with
+    ``F_e = node_weights``, to the bins' midpoint rule).  ``recorded[e]``: the
+    redistribution's row sum (the RMF's rows keep it)."""
+    if np.any(node < 0):
+        e, c = np.argwhere(node < 0)[0]
+        raise ParameterError(
+            f"the extracted source's column-weighted area is negative at {nodes[e]:g} keV in "
+            f"channel {c} ({node[e, c]:.3g} cm2): its pattern at that energy is unlike its "
+            "pattern in the channel; give its spectrum in models")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        arf = np.where(recorded > 0, node.sum(axis=1) / recorded, 0.0)
+    ln = np.log(nodes)
+    frac = np.arange(subdivide + 1)[:-1] / subdivide
+    edges = np.exp(np.append((ln[:-1, None] + np.diff(ln)[:, None] * frac).ravel(), ln[-1]))
+    u = np.tile((np.arange(subdivide) + 0.5) / subdivide, nodes.size - 1)
+    lo = np.repeat(np.arange(nodes.size - 1), subdivide)
+    full = (1.0 - u)[:, None] * node[lo] + u[:, None] * node[lo + 1]
+    a = (1.0 - u) * arf[lo] + u * arf[lo + 1]
+    rmf = np.where(a[:, None] > 0, full / np.where(a > 0, a, 1.0)[:, None], 0.0)
+    return SpectralResponse(edges, channel_edges, rmf, a)
 
 
 def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[SpectralModel],

@@ -21,6 +21,7 @@ numba kernels and astropy's coordinates, which a reader of spectra does not need
 from rotmod.spectral.models import Band, CutoffPowerLaw, Gaussian, PowerLaw, SpectralModel
 from rotmod.spectral.spectrum import (
     CountsSpectrum,
+    RateSpectrum,
     SpectralFit,
     SpectralResponse,
     StatisticMinimum,
@@ -36,6 +37,7 @@ __all__ = [
     "CutoffPowerLaw",
     "Gaussian",
     "PowerLaw",
+    "RateSpectrum",
     "SpectralFit",
     "SpectralModel",
     "SpectralResponse",

@@ -10,15 +10,19 @@ counts a source model ``dN/dE`` predicts in channel ``c`` over an exposure ``T``
 the bin integral taken exactly (:meth:`rotmod.spectral.models.SpectralModel.integral`).  A
 :class:`CountsSpectrum` holds Poisson counts per channel with that response and, optionally,
 a measured background spectrum, whose counts scale to the source's by the OGIP ratio
-``(backscal_src T_src) / (backscal_bkg T_bkg)``.
+``(backscal_src T_src) / (backscal_bkg T_bkg)``.  A :class:`RateSpectrum` holds rates with
+Gaussian errors instead: a source's counts per channel extracted by a fit (a coded mask's or a
+modulator's per-source spectrum, :func:`rotmod.sources.spectra.extract_spectrum`), which are
+not Poisson counts.
 
 :func:`fit_spectrum` maximises the Poisson likelihood: the Cash statistic without a
 background, and with a measured background the W statistic (XSPEC's ``wstat``: the
 background's expected counts per channel profiled out in closed form; Cash 1979, Wachter et
-al. 1979, the XSPEC manual's appendix "Statistics in XSPEC").  Errors come from the
-likelihood's curvature at the maximum.  These statistics are the ones sherpa, XSPEC, threeML
-and gammapy use, so a spectrum written as OGIP files (:mod:`rotmod.io.ogip`) fits to the same
-numbers there.
+al. 1979, the XSPEC manual's appendix "Statistics in XSPEC"); a rate spectrum is fitted by
+``chi2 = sum ((r_c - mu_c / T) / sigma_c)^2`` (XSPEC's ``chi`` with ``POISSERR = F``).
+Errors come from the likelihood's curvature at the maximum.  These statistics are the ones
+sherpa, XSPEC, threeML and gammapy use, so a spectrum written as OGIP files
+(:mod:`rotmod.io.ogip`) fits to the same numbers there.
 """
 
 from __future__ import annotations
@@ -35,8 +39,8 @@ from rotmod.errors import ParameterError
 from rotmod.spectral.models import SpectralModel
 
 __all__ = [
-    "CountsSpectrum", "SpectralFit", "SpectralResponse", "StatisticMinimum", "cash",
-    "check_edges", "fit_spectrum", "minimise_statistic", "wstat",
+    "CountsSpectrum", "RateSpectrum", "SpectralFit", "SpectralResponse", "StatisticMinimum",
+    "cash", "check_edges", "fit_spectrum", "minimise_statistic", "wstat",
 ]
 
 
@@ -165,6 +169,54 @@ class CountsSpectrum:
         return (self.backscal * self.exposure) / (b.backscal * b.exposure)
 
 
+@dataclass(frozen=True, eq=False)
+class RateSpectrum:
+    """Rates per channel with Gaussian 1-sigma errors, and their response.
+
+    What a fit extracts from data that are not a source's own counts -- a coded mask's or a
+    rotating modulator's counts of one source among others and a background
+    (:func:`rotmod.sources.spectra.extract_spectrum`): the values may be negative and their
+    errors are not ``sqrt`` of the counts, so they are fitted by chi-square
+    (:func:`fit_spectrum`) and written with ``STAT_ERR`` and ``POISSERR = F``
+    (:mod:`rotmod.io.ogip`).
+
+    Parameters
+    ----------
+    rate : array_like, shape (n_c,)
+        Counts per second in each channel.
+    error : array_like, shape (n_c,)
+        Their 1-sigma errors (counts/s, > 0).
+    exposure : float
+        Live time (s), > 0: ``rate x exposure`` are the counts the response predicts.
+    response : SpectralResponse, optional
+    meta : dict
+        Header cards for files.
+    """
+
+    rate: np.ndarray
+    error: np.ndarray
+    exposure: float
+    response: SpectralResponse | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        r = np.array(self.rate, dtype=float)
+        e = np.array(self.error, dtype=float)
+        if r.ndim != 1 or r.size == 0 or not np.all(np.isfinite(r)):
+            raise ParameterError("rate must be a 1-D array of finite values, one per channel")
+        if e.shape != r.shape or not np.all(np.isfinite(e)) or np.any(e <= 0):
+            raise ParameterError(f"error must be {r.size} finite values > 0 (counts/s), one "
+                                 "per channel")
+        for name, v in (("rate", r), ("error", e)):
+            v.setflags(write=False)
+            object.__setattr__(self, name, v)
+        object.__setattr__(self, "exposure", as_scalar(self.exposure, "exposure", lo=0.0,
+                                                       lo_open=True))
+        if self.response is not None and self.response.n_channels != r.size:
+            raise ParameterError(f"response has {self.response.n_channels} channels, rate "
+                                 f"{r.size}")
+
+
 def cash(counts: np.ndarray, mu: np.ndarray) -> float:
     """The Cash statistic ``2 sum (mu - n + n ln(n / mu))`` (0 for a perfect fit; the form
     XSPEC and sherpa call ``cstat`` and gammapy ``cash`` up to a constant: differences are what
@@ -232,7 +284,7 @@ class SpectralFit:
         positive (errors finite).  False: treat the numbers with care (the errors of the
         parameters concerned are NaN).
     statistic : float
-        Cash or W statistic at the maximum (``stat_name`` says which).
+        Cash, W statistic or chi-square at the best fit (``stat_name`` says which).
     stat_name : str
     n_channels : int
     """
@@ -248,8 +300,16 @@ class SpectralFit:
     converged: bool = True
 
 
-def _objective(spectrum: CountsSpectrum, channels: np.ndarray):
+def _objective(spectrum: CountsSpectrum | RateSpectrum, channels: np.ndarray):
     resp = spectrum.response
+    if isinstance(spectrum, RateSpectrum):
+        r = spectrum.rate[channels]
+        sigma = spectrum.error[channels]
+
+        def chi2(model: SpectralModel) -> float:
+            mu = resp.fold(model, spectrum.exposure)[channels] / spectrum.exposure
+            return float(np.sum(((r - mu) / sigma) ** 2))
+        return chi2, "chi2"
     n = spectrum.counts[channels]
     if spectrum.background is None:
         def stat(model: SpectralModel) -> float:
@@ -267,18 +327,20 @@ def _objective(spectrum: CountsSpectrum, channels: np.ndarray):
 
 
 def fit_spectrum(
-    spectrum: CountsSpectrum,
+    spectrum: CountsSpectrum | RateSpectrum,
     model: SpectralModel,
     *,
     free: Sequence[str] | None = None,
     channels: Any = None,
 ) -> SpectralFit:
-    """Fit ``model`` forward-folded through the spectrum's response (Cash or W statistic).
+    """Fit ``model`` forward-folded through the spectrum's response (Cash, W statistic or
+    chi-square).
 
     Parameters
     ----------
-    spectrum : CountsSpectrum
-        With a response; with a background the W statistic is used.
+    spectrum : CountsSpectrum or RateSpectrum
+        With a response.  Counts are fitted by the Cash statistic, or with a background by
+        the W statistic; rates with Gaussian errors by chi-square.
     model : SpectralModel
         The start values; parameters not in ``free`` stay fixed.
     free : sequence of str, optional
@@ -290,13 +352,16 @@ def fit_spectrum(
     -------
     SpectralFit
     """
+    if not isinstance(spectrum, CountsSpectrum | RateSpectrum):
+        raise ParameterError("spectrum must be a CountsSpectrum or a RateSpectrum, got "
+                             f"{type(spectrum).__name__}")
     if spectrum.response is None:
         raise ParameterError("spectrum has no response; fit_spectrum needs one")
+    n_c = spectrum.response.n_channels
     try:
-        chans = np.arange(spectrum.counts.size)[channels if channels is not None
-                                                else slice(None)]
+        chans = np.arange(n_c)[channels if channels is not None else slice(None)]
     except (IndexError, TypeError):
-        raise ParameterError(f"channels must select among the {spectrum.counts.size} "
+        raise ParameterError(f"channels must select among the {n_c} "
                              f"channels (a slice, indices or a boolean mask), got "
                              f"{channels!r}") from None
     if chans.size == 0:

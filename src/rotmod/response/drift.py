@@ -22,7 +22,8 @@ bins the flight sweeps, almost independent of the number of intervals
   tangent-plane coordinates in it are the exact projective map ``t = (M_k s)_xy / (M_k s)_z``
   of its unit vector ``s``, and ``q = 1 / (M_k s)_z``.  A roll is exactly a shift of the
   mask angle at which the sky is projected; a tilt is a shift along ``w`` only to first
-  order (its error, ~0.6 (L/R) |t|^2 eps, exceeds 1e-4 above ~0.5' on a 7 deg field), so
+  order (its error, ``~0.6 (L/R) |t|^2 eps``, exceeds 1e-4 above ~0.5' on a 7 deg
+  field), so
   the exact map, six multiply-adds and a division per pixel, is used for both;
 * the projections of every (interval, time bin) pair with exposure are summed, weighted,
   into ONE projection per bin before the detector stage, which then runs once per product

@@ -8,6 +8,7 @@ import astropy.units as u
 import numpy as np
 import pytest
 from astropy.coordinates import SkyCoord
+from scipy.spatial.transform import Rotation
 
 from rotmod.errors import ParameterError
 from rotmod.events import fold
@@ -164,15 +165,46 @@ def test_attitude_table_interpolates_and_round_trips(tmp_path) -> None:
     mid = table.at(600.0)
     assert mid.pointing.separation(Attitude(200.8, -60.4, 25.0).pointing).deg < 1e-9
     assert mid.roll == pytest.approx(25.0, abs=1e-9)
-    # Half-way the pointing is half-way along the great circle.
-    a, b, h = table.at(0.0), table.at(600.0), table.at(300.0)
-    assert h.pointing.separation(a.pointing).deg == pytest.approx(
-        a.pointing.separation(b.pointing).deg / 2, rel=1e-6)
+    # Half-way the instrument has turned half the way, about the same axis (a rigid turn at
+    # a constant rate: the pointing moves 0.28 deg while the roll turns by 15 deg).
+    def rotation(att: Attitude) -> Rotation:
+        z = att.pointing.cartesian.xyz.value
+        y = att.to_sky(90.0, 90.0).cartesian.xyz.value.ravel()
+        return Rotation.from_matrix(np.column_stack([np.cross(y, z), y, z]))
+
+    a, b, h = (rotation(table.at(t)) for t in (0.0, 600.0, 300.0))
+    whole, half = (a.inv() * b).as_rotvec(), (a.inv() * h).as_rotvec()
+    np.testing.assert_allclose(half, whole / 2, atol=1e-10)
     path = tmp_path / "aspect.ecsv"
     table.write(path)
     back = AttitudeTable.read(path)
     np.testing.assert_allclose(back.roll, table.roll)
     assert len(table.intervals(0.0, 1200.0, 100.0)) == 12
+
+
+def test_attitudes_interpolate_as_rotations_through_any_turn() -> None:
+    """Slerp of the rotations (issue 25): a half-turn roll is at a quarter turn midway, a
+    long slew moves along the great circle at a constant rate, and a half turn between two
+    samples (no unique path) is refused."""
+    from rotmod.sky import AttitudeTable
+
+    roll = AttitudeTable([0.0, 10.0], [30.0, 30.0], [20.0, 20.0], [0.0, 180.0 - 1e-6])
+    for t, expected in ((5.0, 90.0), (2.5, 45.0), (7.5, 135.0)):
+        a = roll.at(t)
+        assert a.pointing.separation(Attitude(30.0, 20.0, 0.0).pointing).deg < 1e-9
+        assert a.roll == pytest.approx(expected, abs=1e-5)
+    slew = AttitudeTable([0.0, 100.0], [0.0, 170.0], [0.0, 0.0], [0.0, 0.0])
+    for t in (25.0, 50.0, 75.0):
+        a = slew.at(t)
+        assert a.pointing.ra.deg == pytest.approx(1.7 * t, abs=1e-9)
+        assert abs(a.pointing.dec.deg) < 1e-9
+    # Outside the samples: the first and last attitudes.
+    assert slew.at(-5.0).pointing.ra.deg == pytest.approx(0.0, abs=1e-9)
+    assert slew.at(500.0).pointing.ra.deg == pytest.approx(170.0, abs=1e-9)
+    for ra, roll_end in (([0.0, 180.0], [0.0, 0.0]), ([0.0, 0.0], [0.0, 180.0])):
+        with pytest.raises(ParameterError, match="half turn"):
+            AttitudeTable([0.0, 1.0, 2.0], [0.0, *ra[1:], ra[1]], [0.0, 0.0, 0.0],
+                          [0.0, *roll_end[1:], roll_end[1]])
 
 
 def test_a_drifting_rolling_observation_images_with_the_drift_response() -> None:

@@ -24,6 +24,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 from astropy.coordinates import ICRS, CartesianRepresentation, SkyCoord, SkyOffsetFrame
+from scipy.spatial.transform import Rotation, Slerp
 
 from rotmod._validate import as_angle, as_angle_scalar, as_array, as_scalar
 from rotmod.conventions import source_angles, source_direction
@@ -121,9 +122,11 @@ def _from_axes(z: np.ndarray, y: np.ndarray) -> Attitude:
 class AttitudeTable:
     """A time-dependent attitude (a balloon's aspect solution): samples interpolated.
 
-    Between samples the pointing and the +y axis move along great circles (normalised
-    linear interpolation of the unit vectors, then re-orthogonalised): exact for the slow,
-    small steps of an aspect solution, and well defined at the poles.
+    Between samples the instrument turns as a rigid body at a constant rate about one axis
+    (spherical linear interpolation of the rotations, scipy's ``Slerp``): a roll from 0 to
+    180 deg is at 90 deg midway, a slew from RA 0 to 170 deg at RA 85, and the poles are
+    not special.  Two consecutive samples exactly opposite (a half turn apart) have no
+    unique path between them and are refused.
 
     Parameters
     ----------
@@ -151,17 +154,30 @@ class AttitudeTable:
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
         samples = [Attitude(r, d, o) for r, d, o in zip(*cols, strict=True)]
-        object.__setattr__(self, "_axes", [_axes(a) for a in samples])
+        # Each sample as the rotation whose columns are the instrument's x, y, z in ICRS.
+        frames = []
+        for a in samples:
+            z, y = _axes(a)
+            frames.append(np.column_stack([np.cross(y, z), y, z]))
+        rot = Rotation.from_matrix(np.array(frames))
+        if t.size > 1:
+            turn = (rot[:-1].inv() * rot[1:]).magnitude()
+            bad = np.flatnonzero(turn > np.pi - 1e-9)
+            if bad.size:
+                k = int(bad[0])
+                raise ParameterError(
+                    f"attitude: the samples at {t[k]:g} s and {t[k + 1]:g} s are a half turn "
+                    "apart, so no path between them is defined; add a sample in between")
+        object.__setattr__(self, "_slerp", Slerp(t, rot) if t.size > 1 else None)
+        object.__setattr__(self, "_first", rot[0])
 
     def at(self, t: float) -> Attitude:
         """The attitude at time ``t`` (s); constant before the first and after the last."""
-        i = int(np.clip(np.searchsorted(self.time, t, side="right") - 1, 0, self.time.size - 1))
-        if i == self.time.size - 1 or t <= self.time[0]:
-            z, y = self._axes[i if t > self.time[0] else 0]
-            return _from_axes(z, y)
-        f = (t - self.time[i]) / (self.time[i + 1] - self.time[i])
-        (z0, y0), (z1, y1) = self._axes[i], self._axes[i + 1]
-        return _from_axes((1 - f) * z0 + f * z1, (1 - f) * y0 + f * y1)
+        if self._slerp is None:
+            m = self._first.as_matrix()
+        else:
+            m = self._slerp(float(np.clip(t, self.time[0], self.time[-1]))).as_matrix()
+        return _from_axes(m[:, 2], m[:, 1])
 
     def intervals(self, t_start: float, t_stop: float, max_step: float
                   ) -> list[tuple[float, float, Attitude]]:

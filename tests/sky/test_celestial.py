@@ -207,6 +207,19 @@ def test_attitudes_interpolate_as_rotations_through_any_turn() -> None:
                           [0.0, *roll_end[1:], roll_end[1]])
 
 
+def test_a_dropout_in_the_aspect_is_warned_of() -> None:
+    from rotmod.sky import AttitudeTable
+
+    t = np.concatenate([np.arange(0.0, 60.0), np.arange(150.0, 200.0)])  # 1 Hz, 91 s lost
+    ra, dec, roll = 10.0 + 1e-3 * t, np.full(t.size, 20.0), np.zeros(t.size)
+    with pytest.warns(UserWarning, match=r"1 gap\(s\) .* longer than 10 s, the longest 91 s "
+                      r"after t = 59 s"):
+        AttitudeTable(t, ra, dec, roll)
+    AttitudeTable(t, ra, dec, roll, max_gap=100.0)  # accepted: no warning (errors here)
+    with pytest.raises(ParameterError, match="max_gap"):
+        AttitudeTable(t, ra, dec, roll, max_gap=-1.0)
+
+
 def test_a_drifting_rolling_observation_images_with_the_drift_response() -> None:
     from rotmod.montecarlo import simulate_drift
     from rotmod.response.drift import drift_response

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -134,12 +135,21 @@ class AttitudeTable:
         Sample times (s, increasing, k >= 1).
     ra, dec, roll : array_like, shape (k,)
         Pointing and roll at each sample (deg if plain numbers).
+    max_gap : float, optional
+        The longest time between samples (s) interpolated without a warning (a longer one
+        is a dropout of the aspect solution); default 10 times the median spacing.
+
+    Warns
+    -----
+    UserWarning
+        Gaps longer than ``max_gap``, with the longest and where it is.
     """
 
     time: Any
     ra: Any
     dec: Any
     roll: Any
+    max_gap: Any = None
 
     def __post_init__(self) -> None:
         t = as_array(self.time, "attitude.time", u.s, ndim=1)
@@ -168,6 +178,18 @@ class AttitudeTable:
                 raise ParameterError(
                     f"attitude: the samples at {t[k]:g} s and {t[k + 1]:g} s are a half turn "
                     "apart, so no path between them is defined; add a sample in between")
+        if t.size > 2:
+            gaps = np.diff(t)
+            limit = (10.0 * float(np.median(gaps)) if self.max_gap is None
+                     else as_scalar(self.max_gap, "attitude.max_gap", u.s, lo=0.0,
+                                    lo_open=True))
+            long = np.flatnonzero(gaps > limit)
+            if long.size:
+                k = int(long[np.argmax(gaps[long])])
+                warnings.warn(
+                    f"attitude: {long.size} gap(s) in the aspect longer than {limit:g} s, the "
+                    f"longest {gaps[k]:g} s after t = {t[k]:g} s; the attitude is "
+                    "interpolated across them (set max_gap to accept them)", stacklevel=3)
         object.__setattr__(self, "_slerp", Slerp(t, rot) if t.size > 1 else None)
         object.__setattr__(self, "_first", rot[0])
 

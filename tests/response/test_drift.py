@@ -12,9 +12,10 @@ from rotmod import DetectorArray, Instrument
 from rotmod.errors import ParameterError
 from rotmod.io import load_instrument
 from rotmod.response import RadonResponse, TimeBinning
-from rotmod.response.drift import RadonDriftResponse, attitude_rotations, drift_response
+from rotmod.response.drift import RadonDriftResponse, drift_response
 from rotmod.response.spec import as_spec
 from rotmod.sky import Attitude, CelestialGrid, HealpixGrid, SkyGrid
+from rotmod.sky.attitude import attitude_rotations
 from rotmod.testing import dot_test
 
 PROTO = load_instrument("prototype")  # 19 detectors, a 60 s rotation

@@ -59,6 +59,7 @@ from rotmod.response.radon import (
     _node,
 )
 from rotmod.response.spec import ResponseSpec, as_spec
+from rotmod.sky.attitude import attitude_rotations
 from rotmod.sky.points import DirectionList
 
 __all__ = ["DriftResponse", "RadonDriftResponse", "drift_response"]
@@ -122,24 +123,6 @@ class DriftResponse(ResponseOperator):
 
 
 # --- one table, one projection per bin: the drift's Radon structure (docs/physics.md 2c) ---
-
-
-def attitude_rotations(attitudes: list[Any]) -> np.ndarray:
-    """Rotation matrices ``(k, 3, 3)`` from ICRS unit vectors to each attitude's instrument
-    frame: rows the instrument's +x, +y and +z axes in ICRS.
-
-    +z is the pointing, +y lies at position angle ``roll`` (east of north) and +x = y × z
-    (east at roll 0), as :class:`~rotmod.sky.Attitude` defines them; so ``M s`` is the
-    instrument direction of the sky direction ``s``, exactly as
-    :meth:`~rotmod.sky.Attitude.to_instrument` gives it (to rounding).
-    """
-    a, d, r = (np.radians(np.array([getattr(att, name) for att in attitudes], dtype=float))
-               for name in ("ra", "dec", "roll"))
-    z = np.stack([np.cos(d) * np.cos(a), np.cos(d) * np.sin(a), np.sin(d)], axis=-1)
-    east = np.stack([-np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
-    north = np.stack([-np.sin(d) * np.cos(a), -np.sin(d) * np.sin(a), np.cos(d)], axis=-1)
-    y = np.cos(r)[:, None] * north + np.sin(r)[:, None] * east
-    return np.stack([np.cross(y, z), y, z], axis=1)
 
 
 @njit(cache=True, inline="always", fastmath=_FMA)

@@ -31,7 +31,7 @@ from rotmod._validate import as_angle, as_angle_scalar, as_array, as_scalar
 from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
 
-__all__ = ["Attitude"]
+__all__ = ["Attitude", "attitude_rotations"]
 
 
 @dataclass(frozen=True)
@@ -101,11 +101,22 @@ class Attitude:
         return SkyCoord(out.ra, out.dec, frame="icrs")
 
 
-def _axes(att: Attitude) -> tuple[np.ndarray, np.ndarray]:
-    """ICRS unit vectors of the instrument's +z (pointing) and +y axes."""
-    z = att.pointing.cartesian.xyz.value
-    y = att.to_sky(90.0, 90.0).cartesian.xyz.value
-    return np.asarray(z, dtype=float), np.asarray(y, dtype=float).ravel()
+def attitude_rotations(attitudes: list[Any]) -> np.ndarray:
+    """Rotation matrices ``(k, 3, 3)`` from ICRS unit vectors to each attitude's instrument
+    frame: rows the instrument's +x, +y and +z axes in ICRS.
+
+    +z is the pointing, +y lies at position angle ``roll`` (east of north) and +x = y × z
+    (east at roll 0), as :class:`~rotmod.sky.Attitude` defines them; so ``M s`` is the
+    instrument direction of the sky direction ``s``, exactly as
+    :meth:`~rotmod.sky.Attitude.to_instrument` gives it (to rounding).
+    """
+    a, d, r = (np.radians(np.array([getattr(att, name) for att in attitudes], dtype=float))
+               for name in ("ra", "dec", "roll"))
+    z = np.stack([np.cos(d) * np.cos(a), np.cos(d) * np.sin(a), np.sin(d)], axis=-1)
+    east = np.stack([-np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
+    north = np.stack([-np.sin(d) * np.cos(a), -np.sin(d) * np.sin(a), np.cos(d)], axis=-1)
+    y = np.cos(r)[:, None] * north + np.sin(r)[:, None] * east
+    return np.stack([np.cross(y, z), y, z], axis=1)
 
 
 def _from_axes(z: np.ndarray, y: np.ndarray) -> Attitude:
@@ -164,12 +175,7 @@ class AttitudeTable:
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
         samples = [Attitude(r, d, o) for r, d, o in zip(*cols, strict=True)]
-        # Each sample as the rotation whose columns are the instrument's x, y, z in ICRS.
-        frames = []
-        for a in samples:
-            z, y = _axes(a)
-            frames.append(np.column_stack([np.cross(y, z), y, z]))
-        rot = Rotation.from_matrix(np.array(frames))
+        rot = Rotation.from_matrix(attitude_rotations(samples))
         if t.size > 1:
             turn = (rot[:-1].inv() * rot[1:]).magnitude()
             bad = np.flatnonzero(turn > np.pi - 1e-9)
@@ -199,7 +205,7 @@ class AttitudeTable:
             m = self._first.as_matrix()
         else:
             m = self._slerp(float(np.clip(t, self.time[0], self.time[-1]))).as_matrix()
-        return _from_axes(m[:, 2], m[:, 1])
+        return _from_axes(m[2], m[1])  # rows: the instrument's axes in ICRS
 
     def intervals(self, t_start: float, t_stop: float, max_step: float
                   ) -> list[tuple[float, float, Attitude]]:

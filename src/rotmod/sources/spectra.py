@@ -43,6 +43,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
+from rotmod._validate import as_int
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, fold
 from rotmod.limits import check_memory
@@ -436,9 +437,7 @@ def extract_spectrum(
             0 <= source < n_src):
         raise ParameterError(f"source must be the index of one of the {n_src} sources "
                              f"(0 to {n_src - 1}), got {source!r}")
-    if isinstance(subdivide, bool) or not isinstance(subdivide, int | np.integer) or (
-            subdivide < 1):
-        raise ParameterError(f"subdivide must be an integer >= 1, got {subdivide!r}")
+    subdivide = as_int(subdivide, "subdivide", 1)
     if models is None:
         models = [PowerLaw(1.0, -2.0)] * n_src
     bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure,
@@ -476,7 +475,7 @@ def extract_spectrum(
         area[:, c] = (col[:, dt] * bins.value[on]) @ w[:on.size]
     node = area * columns.redistribution[source]
     response = _response(columns.energies, columns.channel_edges, node,
-                         columns.redistribution[source].sum(axis=1), int(subdivide))
+                         columns.redistribution[source].sum(axis=1), subdivide)
     return RateSpectrum(rate, np.sqrt(var), live, response, {"OBJECT": f"source {source}"})
 
 

@@ -275,6 +275,12 @@ def _detectors(d: Any, material: Any = None) -> Any:
             )
         return arr
     H = _quantity(d, "thickness", "detectors", "cm", "a length", strict=False)
+    if material is None and H.to_value(u.cm) > 0:
+        # Said of the table that is missing, not of the attribute it would fill.
+        raise ConfigError(
+            f"detector_material: the [detector_material] table is required with "
+            f"detectors.thickness = {d['thickness']!r} (the counting probability needs the "
+            "detectors' attenuation), e.g. [detector_material] name = \"NaI\"")
     return arr.__class__(arr.positions, arr.diameter, H, material)
 
 

@@ -30,7 +30,9 @@ import argparse
 import contextlib
 import importlib
 import logging
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Iterator, Sequence
 
@@ -158,6 +160,39 @@ def main(argv: Sequence[str] | None = None) -> int:
         The exit code (0 ok, 2 usage or user error, 1 unexpected error, 130 interrupted).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    with _sigint() as interrupted:
+        try:
+            return _run(argv, interrupted)
+        except KeyboardInterrupt:  # also while the command's modules load
+            print("rotmod: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+
+
+@contextlib.contextmanager
+def _sigint() -> Iterator[list[bool]]:
+    """While a command runs, Ctrl-C (SIGINT) raises KeyboardInterrupt as usual and is also
+    recorded (the yielded list holds ``True``), so that an interrupt that a library turned
+    into an error of its own still exits :data:`EXIT_INTERRUPTED`.  Only Python's default
+    handler is replaced (a SIGINT that the parent ignores stays ignored), and only in the
+    main thread; the old handler comes back on exit."""
+    seen = [False]
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield seen
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        seen[0] = True
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _run(argv: list[str], interrupted: list[bool]) -> int:
     parser = build_parser(_command_of(argv))
     try:
         args = parser.parse_args(argv)
@@ -172,15 +207,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with cli_logging(args.verbose, args.quiet), _compile_notice(args.quiet):
             return int(args.func(args) or EXIT_OK)
-    except KeyboardInterrupt:
-        print("rotmod: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
     except (RotmodError, OSError) as exc:  # a UserError is a RotmodError
+        if interrupted[0] and not args.debug:
+            raise KeyboardInterrupt from None  # an interrupt a library reported as its error
         if args.debug:
             raise
         print(f"rotmod: error: {_describe(exc)}", file=sys.stderr)
         return EXIT_USER
     except Exception as exc:  # a bug: show it
+        if interrupted[0] and not args.debug:
+            raise KeyboardInterrupt from None
         if args.debug:
             raise
 

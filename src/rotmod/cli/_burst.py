@@ -18,8 +18,7 @@ from rotmod.cli._common import (
     add_energy,
     add_output,
     add_progress,
-    check_input,
-    check_output,
+    check_files,
     energy_of,
     progress_wanted,
     save_figure,
@@ -30,6 +29,7 @@ from rotmod.cli._sources import attitude
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
 from rotmod.io import read
+from rotmod.io.atomic import write_text
 from rotmod.io.config import load_instrument_config
 from rotmod.io.regions import write_probability_map
 from rotmod.io.tables import write_product_table
@@ -138,7 +138,9 @@ def _blocks_table(burst: Burst) -> Table:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = check_input(args.data, "EVENTS")
+    files = check_files({"EVENTS": args.data, "--instrument": args.instrument,
+                         "--attitude": args.attitude}, {}, args.overwrite)
+    path = files["EVENTS"]
     far = _rate(args.far)
     if not 0 < args.radius < 90:
         raise UserError(f"--radius: must be in (0, 90) deg, got {args.radius:g}")
@@ -178,11 +180,14 @@ def run(args: argparse.Namespace) -> int:
             f"(threshold {found.threshold_sigma:.2f} sigma): {len(found.candidates)} "
             "candidate(s)")
         intervals = list(found.candidates)
-    paths = []
-    for k in range(1, len(intervals) + 1):
-        stem = f"{args.output}_{k}"
-        paths.append({ext: check_output(f"{stem}{ext}", args.overwrite, inputs=(args.data,))
-                      for ext in (".fits", "_lc.fits", "_prob.fits", ".txt", ".png")})
+    # The names come from the candidates found: checked now, before any burst's work.
+    exts = (".fits", "_lc.fits", "_prob.fits", ".txt", ".png")
+    files = files.more({f"-o {args.output} (burst {k}, {ext})": f"{args.output}_{k}{ext}"
+                        for k in range(1, len(intervals) + 1) for ext in exts},
+                       plots=tuple(f"-o {args.output} (burst {k}, .png)"
+                                   for k in range(1, len(intervals) + 1)))
+    paths = [{ext: files[f"-o {args.output} (burst {k}, {ext})"] for ext in exts}
+             for k in range(1, len(intervals) + 1)]
     cache: dict = {}
     model = args.model or DEFAULT_MODEL
     for k, (interval, out) in enumerate(zip(intervals, paths, strict=True), 1):
@@ -197,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
             continue
         text = b.summary(name)
         print(text)
-        out[".txt"].write_text(text + "\n")
+        write_text(out[".txt"], text + "\n")
         write_product_table(b.to_table(), out[".fits"], extname="BURST",
                             overwrite=args.overwrite, command=sys.argv)
         write_product_table(_blocks_table(b), out["_lc.fits"], extname="LIGHTCURVE",

@@ -8,6 +8,7 @@ import logging
 import os
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,6 +21,7 @@ from rotmod.io import figures as io_figures
 from rotmod.io import tables as io_tables
 from rotmod.io.atomic import check_overwrite
 from rotmod.io.config import list_presets, load_instrument_config
+from rotmod.io.response_store import as_store_path, check_partial, store_paths
 from rotmod.progress import Progress
 from rotmod.registry import Registry
 from rotmod.sky import Attitude, AttitudeTable, SkyGeometry
@@ -292,7 +294,12 @@ def source_arg(with_rate: bool = False) -> Callable[[str], tuple[float, ...]]:
 
 
 def parse_range(text: str) -> np.ndarray:
-    """``START:STOP:NUM`` (inclusive, NUM values) or a comma list ``1,2,4``."""
+    """``START:STOP:NUM`` (inclusive, NUM values) or a comma list ``1,2,4`` (not empty:
+    argparse names the option, ``argument --a: ...``)."""
+    if not text.replace(",", "").strip():
+        raise argparse.ArgumentTypeError(
+            f"an empty list; must be START:STOP:NUM or a comma-separated list of numbers, "
+            f"got {text!r}")
     try:
         if ":" in text:
             parts = text.split(":")
@@ -309,37 +316,145 @@ def parse_range(text: str) -> np.ndarray:
         ) from None
 
 
-def check_output(
-    path: str | os.PathLike, overwrite: bool, *, what: str = "output",
-    inputs: tuple[str | os.PathLike, ...] = (),
-) -> Path:
-    """Refuse to overwrite unless asked (and never an input), and make sure the folder exists."""
+def check_output(path: str | os.PathLike, overwrite: bool, *, what: str = "output") -> Path:
+    """Refuse to overwrite unless asked, and make sure the folder exists (one output; a
+    command checks all its files at once with :func:`check_files`)."""
     p = Path(path)
-    for src in inputs:
-        if p.resolve() == Path(src).resolve():
-            raise UserError(f"{what} {str(p)!r} is also an input of this command; write the "
-                            "result to another file (--overwrite never replaces an input)")
     check_overwrite(p, overwrite, parameter=what, flag="--overwrite")
     if not p.parent.exists():
         raise UserError(f"{what} {str(p)!r}: folder {str(p.parent)!r} does not exist")
     return p
 
 
-def check_plot(path: str | os.PathLike | None, overwrite: bool, **kw: Any) -> Path | None:
-    """:func:`check_output` for ``--plot``, which must name an image format matplotlib writes.
-
-    Checked before any work is done, so a bad name never costs a computation.
-    """
-    if path is None:
-        return None
+def check_plot(path: str | os.PathLike, overwrite: bool, *, what: str = "--plot") -> Path:
+    """:func:`check_output` for a plot, which must name an image format matplotlib writes."""
     from matplotlib.backend_bases import FigureCanvasBase
 
-    p = check_output(path, overwrite, what="--plot", **kw)
+    p = check_output(path, overwrite, what=what)
     formats = FigureCanvasBase.get_supported_filetypes()
     if p.suffix[1:].lower() not in formats:
-        raise UserError(f"--plot {str(p)!r}: the extension must be an image format "
+        raise UserError(f"{what} {str(p)!r}: the extension must be an image format "
                         f"({', '.join(sorted(formats))}), got {p.suffix or 'none'!r}")
     return p
+
+
+def _same(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name one file (links and ``..`` included)."""
+    if a.exists() and b.exists():
+        return os.path.samefile(a, b)
+    return a.resolve() == b.resolve()
+
+
+def _inside(a: Path, b: Path) -> bool:
+    """Whether ``a`` is within the folder ``b`` (``b`` replaced or written removes ``a``)."""
+    return b.resolve() in a.resolve().parents
+
+
+def _clash(a: Path, b: Path) -> str | None:
+    """How ``a`` and ``b`` overlap (``None``: they do not)."""
+    if _same(a, b):
+        return "is"
+    if _inside(a, b):
+        return "is inside"
+    if _inside(b, a):
+        return "holds"
+    return None
+
+
+@dataclass(frozen=True)
+class Files:
+    """A command's files, checked together (:func:`check_files`): ``inputs`` and ``outputs``
+    by option (or argument name), each a :class:`~pathlib.Path`."""
+
+    inputs: dict[str, Path]
+    outputs: dict[str, Path]
+    overwrite: bool
+    #: Output -> the fixed names its writer also uses beside it (a store's ``.partial`` form
+    #: and ``.lock``).
+    reserved: dict[str, tuple[Path, ...]] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> Path | None:
+        return self.outputs.get(name, self.inputs.get(name))
+
+    def more(self, outputs: dict[str, Any], *, plots: tuple[str, ...] = ()) -> Files:
+        """These files plus ``outputs`` known only later (names made from results), checked
+        against every input and every output as :func:`check_files` checks."""
+        return check_files(self.inputs, {**self.outputs, **outputs}, self.overwrite,
+                           plots=plots, reserved=self.reserved, checked=self)
+
+
+def check_files(inputs: dict[str, Any], outputs: dict[str, Any], overwrite: bool, *,
+                stores: tuple[str, ...] = (), plots: tuple[str, ...] = (),
+                reserved: dict[str, tuple[Path, ...]] | None = None,
+                checked: Files | None = None) -> Files:
+    """The one check of a command's files, before any work.
+
+    Every input exists; no output (nor any name its writer uses beside it) is an input, is
+    inside an input folder or holds an input, and no two outputs share a path; an existing
+    output is replaced only with ``--overwrite``; every output's folder exists; plots name
+    an image format.  Temporary names are never checked: the writers make them unique
+    (:mod:`rotmod.io.atomic`).
+
+    Parameters
+    ----------
+    inputs, outputs : dict
+        Option or argument name (as the message should say it) -> path, or ``None`` for one
+        not given.  An input given as ``-i``/``--instrument`` counts only when it is a file
+        or a folder (else it names a preset).
+    overwrite : bool
+        ``--overwrite``.
+    stores : tuple of str
+        Outputs that are response stores (their ``.partial`` form and ``.lock`` are checked
+        too).
+    plots : tuple of str
+        Outputs that are plots (:func:`check_plot`).
+    reserved, checked
+        For :meth:`Files.more`: what an earlier call knew and checked.
+
+    Returns
+    -------
+    Files
+
+    Raises
+    ------
+    UserError, ParameterError
+    """
+    ins: dict[str, Path] = dict(checked.inputs) if checked else {}
+    for name, value in inputs.items():
+        if value is None or name in ins:
+            continue
+        p = Path(value)
+        if name in ("-i", "--instrument") and not (p.exists() or p.is_symlink()):
+            continue  # a preset (load_instrument_config says what is wrong with a name)
+        ins[name] = check_input(p, name)
+    outs = {name: Path(v) for name, v in outputs.items() if v is not None}
+    res = dict(reserved or {})
+    for name in stores:
+        if name in outs:
+            res[name] = store_paths(as_store_path(outs[name]))
+            check_partial(res[name][0])  # whatever is in the way, said before any work
+    names = list(outs.items())
+    for k, (name, p) in enumerate(names):
+        taken = [(p, "")] + [(q, f" (its writer also uses {str(q)!r})")
+                             for q in res.get(name, ())]
+        for q, whose in taken:
+            for iname, i in ins.items():
+                how = _clash(q, i)
+                if how:
+                    raise UserError(
+                        f"{name} {str(p)!r}{whose} {how} {iname} {str(i)!r}, an input of this "
+                        "command; write the result to another path (--overwrite never "
+                        "replaces an input)")
+            for oname, o in names[:k]:
+                for r in (o, *res.get(oname, ())):
+                    how = _clash(q, r)
+                    if how:
+                        raise UserError(
+                            f"{name} {str(p)!r}{whose} {how} {oname} {str(r)!r}, another "
+                            "output of this command; give each output its own path")
+        if checked is None or name not in checked.outputs:
+            (check_plot if name in plots else check_output)(p, overwrite, what=name)
+    return Files(ins, outs, overwrite, res)
 
 
 def count(lo: int) -> Callable[[str], int]:
@@ -390,6 +505,7 @@ def registered(registry: Registry[Any], name: str, option: str) -> str:
 
 
 def check_input(path: str | os.PathLike, what: str = "input") -> Path:
+    """``path``, which must exist (a file, or a folder such as a response store)."""
     p = Path(path)
     if not p.exists():
         raise UserError(f"{what} {str(p)!r} does not exist")

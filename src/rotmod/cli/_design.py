@@ -13,8 +13,7 @@ from rotmod.cli._common import (
     add_instrument,
     add_output,
     add_progress,
-    check_output,
-    check_plot,
+    check_files,
     count,
     load_config,
     parse_range,
@@ -88,8 +87,10 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = check_output(args.output, args.overwrite)
-    plot = check_plot(args.plot, args.overwrite)
+    files = check_files({"--instrument": args.instrument},
+                        {"--output": args.output, "--plot": args.plot}, args.overwrite,
+                        plots=("--plot",))
+    out, plot = files["--output"], files["--plot"]
     cfg = load_config(args)
     inst = cfg.to_instrument()
     c = inst.detectors.diameter if args.c is None else args.c

@@ -13,8 +13,7 @@ from rotmod.cli._common import (
     UserError,
     add_output,
     add_progress,
-    check_input,
-    check_output,
+    check_files,
     count,
     progress_wanted,
     quantity,
@@ -24,6 +23,7 @@ from rotmod.cli._response import add_grid_options, make_grid
 from rotmod.cli._sources import (
     add_data_options,
     folded_of,
+    input_files,
     make_response,
     read_data,
     stored_frame,
@@ -123,14 +123,14 @@ def _describe(det: Detection, k: int) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    data_path = check_input(args.data, "DATA")
-    inputs = tuple(x for x in (args.data, args.response, args.catalogue_in) if x is not None)
-    out = check_output(args.output, args.overwrite, inputs=inputs)
+    maps = {f"--{opt.replace('_', '-')}": getattr(args, opt)
+            for opt in ("ts_map", "first_map", "regions")}
+    files = check_files(input_files(args, **{"--catalogue-in": args.catalogue_in}),
+                        {"--output": args.output, **maps}, args.overwrite)
+    data_path, out = files["DATA"], files["--output"]
     product_format(out, "--output")
-    extra = {opt: check_output(path, args.overwrite, what=f"--{opt.replace('_', '-')}",
-                               inputs=inputs)
-             for opt in ("ts_map", "first_map", "regions")
-             if (path := getattr(args, opt)) is not None}
+    extra = {opt: files[f"--{opt.replace('_', '-')}"]
+             for opt in ("ts_map", "first_map", "regions") if getattr(args, opt) is not None}
     if not (np.isfinite(args.threshold) and args.threshold > 0):
         raise UserError(f"--threshold: must be a TS > 0, got {args.threshold:g}")
     if not args.systematic >= 0:
@@ -139,8 +139,6 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--ul-confidence: must be in (0.5, 1), got {args.ul_confidence:g}")
     if args.refit_positions and args.catalogue_in is None:
         raise UserError("--refit-positions: goes with --catalogue-in")
-    if args.catalogue_in is not None:
-        check_input(args.catalogue_in, "--catalogue-in")
     frame = stored_frame(args) or ("instrument" if args.grid == "instrument" else "celestial")
     if frame == "instrument":
         for opt in ("regions", "prob_maps"):
@@ -176,9 +174,10 @@ def run(args: argparse.Namespace) -> int:
         if len(set(names)) != len(names):
             raise UserError(f"--prob-maps: the sources' names must differ to name their "
                             f"files, got {names}")
-        prob_paths = {k: check_output(f"{args.prob_maps}{name}.fits", args.overwrite,
-                                      what="--prob-maps file", inputs=inputs)
-                      for k, name in enumerate(names) if det.regions[k] is not None}
+        keys = {k: f"--prob-maps file {k + 1}" for k in range(len(names))
+                if det.regions[k] is not None}
+        files = files.more({keys[k]: f"{args.prob_maps}{names[k]}.fits" for k in keys})
+        prob_paths = {k: files[key] for k, key in keys.items()}
 
     say(f"rotmod: {len(det.sources) - n_known} new source(s) with TS >= {args.threshold:g}"
         + (f" (and {n_known} known)" if n_known else ""))

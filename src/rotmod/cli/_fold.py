@@ -13,9 +13,7 @@ from rotmod.cli._common import (
     add_band,
     add_output,
     band_of,
-    check_input,
-    check_output,
-    check_plot,
+    check_files,
     count,
     save_figure,
     say,
@@ -45,9 +43,10 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
-    src = check_input(args.events, "event list")
-    out = check_output(args.output, args.overwrite, inputs=(src,))
-    plot = check_plot(args.plot, args.overwrite)
+    files = check_files({"event list": args.events},
+                        {"--output": args.output, "--plot": args.plot}, args.overwrite,
+                        plots=("--plot",))
+    src, out, plot = files["event list"], files["--output"], files["--plot"]
     if args.bins < 1:
         raise UserError(f"--bins: must be >= 1, got {args.bins}")
     events = read_events(src)

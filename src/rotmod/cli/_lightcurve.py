@@ -12,9 +12,7 @@ from rotmod.cli._common import (
     add_output,
     add_progress,
     band_of,
-    check_input,
-    check_output,
-    check_plot,
+    check_files,
     count,
     progress_wanted,
     save_figure,
@@ -23,7 +21,7 @@ from rotmod.cli._common import (
     tqdm_progress,
     use_agg,
 )
-from rotmod.cli._sources import add_data_options, make_response, read_data
+from rotmod.cli._sources import add_data_options, input_files, make_response, read_data
 from rotmod.io.catalogue import read_catalogue
 from rotmod.io.tables import product_format, write_light_curve
 from rotmod.sky import DirectionList, PositionList, SkyGeometry
@@ -100,11 +98,11 @@ def _plot(lc: LightCurve, path: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cat_path = check_input(args.catalogue, "CATALOGUE")
-    inputs = tuple(x for x in (args.data, args.response, args.catalogue) if x is not None)
-    out = check_output(args.output, args.overwrite, inputs=inputs)
+    files = check_files(input_files(args, events_only=True, CATALOGUE=args.catalogue),
+                        {"--output": args.output, "--plot": args.plot}, args.overwrite,
+                        plots=("--plot",))
+    cat_path, out, plot = files["CATALOGUE"], files["--output"], files["--plot"]
     product_format(out, "--output")
-    plot = check_plot(args.plot, args.overwrite, inputs=inputs)
     if not 0.5 < args.ul_confidence < 1:
         raise UserError(f"--ul-confidence: must be in (0.5, 1), got {args.ul_confidence:g}")
     events = read_data(args, events_only=True)

@@ -13,8 +13,7 @@ from rotmod.cli._common import (
     add_energy,
     add_instrument,
     add_output,
-    check_output,
-    check_plot,
+    check_files,
     count,
     energy_of,
     load_config,
@@ -63,8 +62,10 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = check_output(args.output, args.overwrite)
-    plot = check_plot(args.plot, args.overwrite)
+    files = check_files({"--instrument": args.instrument},
+                        {"--output": args.output, "--plot": args.plot}, args.overwrite,
+                        plots=("--plot",))
+    out, plot = files["--output"], files["--plot"]
     if args.angles < 1:
         raise UserError(f"--angles: must be >= 1, got {args.angles}")
     cfg = load_config(args)

@@ -13,9 +13,7 @@ from rotmod.cli._common import (
     UserError,
     add_output,
     add_progress,
-    check_input,
-    check_output,
-    check_plot,
+    check_files,
     count,
     describe_position,
     iteration_bar,
@@ -80,10 +78,10 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    src = check_input(args.folded, "folded profiles")
-    rsp = check_input(args.response, "response")
-    out = check_output(args.output, args.overwrite, inputs=(src, rsp))
-    plot = check_plot(args.plot, args.overwrite)
+    files = check_files({"FOLDED": args.folded, "RESPONSE": args.response},
+                        {"--output": args.output, "--plot": args.plot}, args.overwrite,
+                        plots=("--plot",))
+    src, rsp, out, plot = (files[k] for k in ("FOLDED", "RESPONSE", "--output", "--plot"))
     if args.method is not None:
         registered(ALGORITHMS, args.method, "--method")
     marks = _marks(args)

@@ -21,7 +21,7 @@ from rotmod.cli._common import (
     add_output,
     add_progress,
     attitude_of,
-    check_output,
+    check_files,
     count,
     energy_of,
     heartbeat,
@@ -157,7 +157,9 @@ def _shape(args: argparse.Namespace, grid: SkyGeometry) -> str:
 
 def run(args: argparse.Namespace) -> int:
     args.model = registered(MODELS, args.model or DEFAULT_MODEL, "--model")
-    out = check_output(args.output, args.overwrite)
+    out = check_files({"--instrument": args.instrument, "--attitude": args.attitude},
+                      {"--output": args.output}, args.overwrite,
+                      stores=("--output",))["--output"]
     if args.operator == "radon" and args.model != "exact":
         raise UserError(f"--model: --operator radon factorises the exact model, got "
                         f"{args.model!r}")

@@ -19,7 +19,7 @@ from rotmod.cli._common import (
     add_output,
     add_progress,
     attitude_of,
-    check_output,
+    check_files,
     count,
     energy_of,
     heartbeat,
@@ -96,7 +96,8 @@ def parse_sky_source(text: str) -> tuple[float, float, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = check_output(args.output, args.overwrite)
+    out = check_files({"--instrument": args.instrument, "--attitude": args.attitude},
+                      {"--output": args.output}, args.overwrite)["--output"]
     if not np.isfinite(args.exposure) or args.exposure <= 0:
         raise UserError(f"--exposure: must be > 0 s, got {args.exposure:g} s")
     if not np.isfinite(args.background) or args.background < 0:

@@ -70,6 +70,14 @@ def add_data_options(p: argparse.ArgumentParser, *, events_only: bool = False) -
     add_attitude(p)
 
 
+def input_files(args: argparse.Namespace, *, events_only: bool = False,
+                **more: Any) -> dict[str, Any]:
+    """The input files of :func:`add_data_options` (by the name a message gives them) and
+    ``more``, for :func:`~rotmod.cli._common.check_files`."""
+    return {"EVENTS" if events_only else "DATA": args.data, "--response": args.response,
+            "--instrument": args.instrument, "--attitude": args.attitude, **more}
+
+
 def read_data(args: argparse.Namespace, *, events_only: bool = False
               ) -> EventList | FoldedProfiles:
     """The ``DATA`` file: an event list, or (unless ``events_only``) folded profiles."""

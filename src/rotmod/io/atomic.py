@@ -6,11 +6,19 @@ complete, so an interruption never leaves a half-written file under the final na
 ``tempfile`` creates files 0600 and folders 0700 whatever the umask; the final object gets
 the mode a plain ``open()``/``mkdir()`` would have given it (0666/0777 minus the umask), so
 results are as readable as the user's other files.
+
+Every name a writer makes beside its output fits the file system's 255-byte limit whatever
+the output's name (:data:`NAME_MAX`): the temporary names keep a shortened start of the
+name and a random part, and the fixed names (:func:`sibling`: a response store's
+``.partial`` form, a ``.lock``) a shortened start and a hash of the whole name.  None of
+them is a fixed name a user may own: a folder being replaced is moved to a fresh temporary
+name (:func:`replace_dir`), never to ``<name>.old``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import shutil
 import tempfile
@@ -20,13 +28,48 @@ from pathlib import Path
 from rotmod.errors import ParameterError
 
 __all__ = [
+    "NAME_MAX",
     "atomic_dir",
     "atomic_path",
     "check_overwrite",
     "current_umask",
     "remove_stale_dirs",
+    "replace_dir",
+    "sibling",
     "write_text",
 ]
+
+#: Longest file name, in bytes, of the file systems rotmod writes to (ext4, XFS, APFS, NTFS).
+NAME_MAX = 255
+#: Bytes that :func:`tempfile.mkstemp`/:func:`~tempfile.mkdtemp` add around the kept start
+#: of a name here: ``.`` + name + ``.`` + 8 random characters + ``.tmp`` (or ``.tmp-`` ...).
+_TEMP_EXTRA = 14
+
+
+def _cut(name: str, nbytes: int) -> str:
+    """The longest start of ``name`` that takes at most ``nbytes`` bytes on disk (never half
+    a character)."""
+    return os.fsencode(name)[:nbytes].decode("utf-8", errors="ignore")
+
+
+def _temp_stem(p: Path) -> str:
+    """The start of ``p``'s name that a temporary name beside it keeps (within NAME_MAX)."""
+    return _cut(p.name, NAME_MAX - _TEMP_EXTRA)
+
+
+def sibling(path: str | os.PathLike, suffix: str) -> Path:
+    """``path`` with ``suffix`` added to its name: a fixed name a writer keeps beside its
+    output (``.partial``, ``.lock``), the same at every run.
+
+    A name that would pass :data:`NAME_MAX` bytes keeps the start of ``path``'s name and a
+    hash of the whole (``<start>~<12 hex digits><suffix>``), so it still fits and still
+    differs between outputs.
+    """
+    p = Path(path)
+    if len(os.fsencode(p.name + suffix)) <= NAME_MAX:
+        return p.with_name(p.name + suffix)
+    tail = f"~{hashlib.sha256(os.fsencode(p.name)).hexdigest()[:12]}{suffix}"
+    return p.with_name(_cut(p.name, NAME_MAX - len(os.fsencode(tail))) + tail)
 
 
 def check_overwrite(path: str | os.PathLike, overwrite: bool, *, parameter: str = "path",
@@ -77,7 +120,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     name).  On an exception the temporary file is removed and ``path`` is left untouched.
     """
     p = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{_temp_stem(p)}.", suffix=".tmp", dir=p.parent or ".")
     os.close(fd)
     try:
         yield Path(tmp)
@@ -96,19 +139,42 @@ _DIR_TAG = ".tmp-"
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; on success it replaces ``path``.
 
-    An existing ``path`` is removed only once the new folder is complete.
+    An existing ``path`` is removed only once the new folder is complete
+    (:func:`replace_dir`).
     """
     p = Path(path)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}{_DIR_TAG}", dir=p.parent or "."))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{_temp_stem(p)}{_DIR_TAG}", dir=p.parent or "."))
     try:
         yield tmp
         os.chmod(tmp, _default_mode(True))
-        if p.exists():
-            shutil.rmtree(p)
-        os.replace(tmp, p)
+        replace_dir(tmp, p)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def replace_dir(src: str | os.PathLike, dst: str | os.PathLike) -> None:
+    """Rename the folder ``src`` to ``dst``, replacing an existing ``dst``.
+
+    An existing ``dst`` is first moved into a fresh temporary folder beside it (a name no
+    one else holds: never a fixed one such as ``<dst>.old``, which could be the user's), and
+    removed only once ``src`` is in its place.
+    """
+    s, d = Path(src), Path(dst)
+    if not (d.exists() or d.is_symlink()):
+        os.replace(s, d)
+        return
+    trash = Path(tempfile.mkdtemp(prefix=f".{_temp_stem(d)}.old-", dir=d.parent or "."))
+    old = trash / "old"
+    try:
+        os.replace(d, old)
+        try:
+            os.replace(s, d)
+        except BaseException:
+            os.replace(old, d)  # put the old one back
+            raise
+    finally:
+        shutil.rmtree(trash, ignore_errors=True)
 
 
 def remove_stale_dirs(folder: str | os.PathLike) -> None:

@@ -183,6 +183,9 @@ def load_instrument_config(source: str | os.PathLike | InstrumentConfig) -> Inst
     p = Path(source)
     if p.is_file():
         return read_instrument_config(p)
+    if p.is_dir():
+        raise ConfigError(f"instrument: {str(source)!r} is a folder; give an instrument file "
+                          f"(TOML or YAML) or a preset ({', '.join(list_presets())})")
     if isinstance(source, str) and os.sep not in source and not p.suffix:
         return read_instrument_config(preset_path(source))
     raise ConfigError(

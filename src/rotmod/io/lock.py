@@ -30,8 +30,9 @@ from types import TracebackType
 from filelock import FileLock, Timeout
 
 from rotmod.errors import RotmodError
+from rotmod.io.atomic import sibling
 
-__all__ = ["LockedError", "PathLock"]
+__all__ = ["LockedError", "PathLock", "lock_path"]
 
 
 class LockedError(RotmodError):
@@ -49,13 +50,19 @@ def _write_owner(fd: int) -> None:
     os.write(fd, json.dumps(info).encode())
 
 
+def lock_path(path: str | os.PathLike) -> Path:
+    """The lock file of the output ``path``: ``<path>.lock`` (:func:`rotmod.io.atomic.sibling`)."""
+    return sibling(path, ".lock")
+
+
 class PathLock:
     """Exclusive, non-blocking lock on ``<path>.lock`` (see the module notes).
 
     Parameters
     ----------
     path : str or path-like
-        The output to protect; the lock file is ``<path>.lock`` beside it.
+        The output to protect; the lock file is ``<path>.lock`` beside it (a shortened name
+        with a hash when that would be too long: :func:`rotmod.io.atomic.sibling`).
 
     Raises
     ------
@@ -65,7 +72,7 @@ class PathLock:
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
-        self.lock_path = self.path.with_name(self.path.name + ".lock")
+        self.lock_path = lock_path(self.path)
         self._lock = FileLock(self.lock_path, blocking=False, on_acquired=_write_owner)
 
     def _owner(self) -> str:

@@ -58,7 +58,8 @@ import astropy.units as u
 import numpy as np
 
 from rotmod.errors import ParameterError, RotmodError
-from rotmod.io.atomic import check_overwrite
+from rotmod.io.atomic import check_overwrite, replace_dir, sibling
+from rotmod.io.lock import lock_path
 from rotmod.io.provenance import git_commit
 from rotmod.sky.celestial import CelestialGrid
 from rotmod.sky.geometry import SkyGeometry, WcsGeometry
@@ -71,6 +72,7 @@ __all__ = [
     "as_store_path",
     "axis_coords",
     "check_complete",
+    "check_partial",
     "create_dense",
     "dense_array",
     "disk_bytes",
@@ -82,6 +84,7 @@ __all__ = [
     "partial_path",
     "read_checked",
     "read_table",
+    "store_paths",
     "verified",
     "write_axes",
     "write_table",
@@ -135,8 +138,39 @@ def as_store_path(path: Any) -> Path:
 
 
 def partial_path(path: Path) -> Path:
-    """Where the store at ``path`` is written until it is complete."""
-    return path.with_name(path.name + _PARTIAL)
+    """Where the store at ``path`` is written until it is complete (``<path>.partial``, a
+    shortened name with a hash when that would be too long: :func:`rotmod.io.atomic.sibling`)."""
+    return sibling(path, _PARTIAL)
+
+
+def store_paths(path: Path) -> tuple[Path, Path]:
+    """The names a writer of the store ``path`` uses beside it: its unfinished form
+    (:func:`partial_path`) and its lock (:func:`rotmod.io.lock.lock_path`)."""
+    return partial_path(path), lock_path(path)
+
+
+def check_partial(partial: Path) -> bool:
+    """Whether an unfinished store of an earlier run is at ``partial`` (to resume or replace).
+
+    Raises
+    ------
+    ParameterError
+        Something else holds the name: a file, or a folder without a rotmod response's
+        metadata (a run killed before it wrote any, or a folder that is not rotmod's), which
+        is never removed here.
+    """
+    if not (partial.exists() or partial.is_symlink()):
+        return False
+    try:
+        _read_meta(_zarr().open_group(str(partial), mode="r"), partial)
+    except Exception:  # zarr raises several kinds for a folder that is no zarr group
+        raise ParameterError(
+            f"{str(partial)!r} is where the unfinished store is written, but it holds no "
+            "unfinished rotmod response (no readable rotmod metadata: a run killed before "
+            "it wrote any, or a file or folder that is not rotmod's); it is left as it is: "
+            "remove it, or write the store under another name"
+        ) from None
+    return True
 
 
 def disk_bytes(path: Path) -> int:
@@ -477,11 +511,4 @@ def finalise(partial: Path, path: Path, overwrite: bool) -> None:
         warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
         zarr.consolidate_metadata(str(partial))
     check_overwrite(path, overwrite)
-    trash = None
-    if path.exists():
-        trash = path.with_name(path.name + ".old")
-        shutil.rmtree(trash, ignore_errors=True)
-        os.replace(path, trash)
-    os.replace(partial, path)
-    if trash is not None:
-        shutil.rmtree(trash, ignore_errors=True)
+    replace_dir(partial, path)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import astropy.units as u
+import numba
 import numpy as np
 
 from rotmod._rng import chunk_states, seed_sequence
@@ -38,10 +39,23 @@ log = logging.getLogger(__name__)
 
 #: Default photons per parallel chunk (about 40 ms of work on one core).
 DEFAULT_CHUNK = 2**20
-#: Chunks handed to numba per call (progress is reported between calls).
+#: Chunks whose random streams are drawn at once (the streams' layout: results depend on it).
 _BATCH_CHUNKS = 256
-#: Incident photons per observation batch (bounds memory: 16 bytes each).
+#: Incident photons per observation batch (bounds memory: 16 bytes each; the streams of its
+#: chunks are drawn at once, so results depend on it too).
 _OBS_BATCH_PHOTONS = 2**23
+#: Photons per numba thread in one kernel call.  Compiled code never sees Ctrl-C, so a
+#: batch is handed to numba a few chunks at a time (:func:`_per_call`) and a
+#: KeyboardInterrupt stops the run between calls: about 0.1 s of profiles and 0.4 s of an
+#: observation per call on one core (docs/reliability.md).  The streams stay the batch's,
+#: so the results do not depend on it.
+_CALL_PHOTONS = 2**20
+
+
+def _per_call(chunk_size: int) -> int:
+    """Chunks of ``chunk_size`` photons per kernel call: :data:`_CALL_PHOTONS` for each of
+    numba's threads (at least one chunk each)."""
+    return numba.get_num_threads() * max(1, _CALL_PHOTONS // chunk_size)
 
 
 
@@ -298,16 +312,17 @@ def simulate_profiles(
     total = n_cells * n_photons
     update, close = progress_callbacks(progress, total, "MC profiles", "photon")
     done = 0
+    lo, hi, part, nphot = (x.astype(np.int64) for x in (lo, hi, part, nphot))
+    step = _per_call(chunk_size)
     try:
         for s in range(0, lo.size, _BATCH_CHUNKS):
-            sl = slice(s, s + _BATCH_CHUNKS)
-            states = chunk_states(root, lo[sl].size)
-            kernel(
-                lo[sl].astype(np.int64), hi[sl].astype(np.int64), part[sl].astype(np.int64),
-                nphot[sl].astype(np.int64), states, *args_geom, counts,
-            )
-            done += int(np.sum((hi[sl] - lo[sl]) * nphot[sl]))
-            update(done, total)
+            states = chunk_states(root, min(_BATCH_CHUNKS, lo.size - s))
+            for c in range(0, states.shape[0], step):  # a few chunks per call (_CALL_PHOTONS)
+                sl = slice(s + c, s + min(c + step, states.shape[0]))
+                kernel(lo[sl], hi[sl], part[sl], nphot[sl], states[c : c + step], *args_geom,
+                       counts)
+                done += int(np.sum((hi[sl] - lo[sl]) * nphot[sl]))
+                update(done, total)
     finally:
         close()
     log.debug("simulate_profiles: %d photons in %d chunks", total, lo.size)
@@ -534,6 +549,7 @@ def simulate_observation(
         inst.angular_speed, phase, a, b, L, h, thin_opaque,
     )
     per_batch = max(1, _OBS_BATCH_PHOTONS // max(chunk_size, 1))
+    step = _per_call(chunk_size)
     out_t, out_d, out_s = [], [], []
     total_ms = round(1e3 * float(np.sum(g[:, 1] - g[:, 0])))
     update, close = progress_callbacks(progress, total_ms, "MC observation", "photon")
@@ -553,9 +569,11 @@ def simulate_observation(
             bd = np.empty(n_tot, np.int32)
             bs = np.empty(n_tot, np.int32)
             n_out = np.zeros(p.shape[0], np.int64)
-            tr.observation_kernel(
-                p[:, 0].copy(), p[:, 1].copy(), st_n, st_p, offset, *geom, bt, bd, bs, n_out
-            )
+            t_lo, t_hi = p[:, 0].copy(), p[:, 1].copy()
+            for c in range(0, p.shape[0], step):  # a few pieces per call (_CALL_PHOTONS)
+                sl = slice(c, c + step)
+                tr.observation_kernel(t_lo[sl], t_hi[sl], st_n[sl], st_p[sl], offset[sl],
+                                      *geom, bt, bd, bs, n_out[sl])
             keep = np.concatenate(
                 [np.arange(o, o + k) for o, k in zip(offset, n_out, strict=True)]
             ) if p.shape[0] else np.zeros(0, np.int64)

@@ -162,7 +162,7 @@ class ResponsePlan:
         acc = np.zeros(shape)
         tmp = np.empty(shape)
         for row in xi:
-            self.model.evaluate(self.instrument, geom, np.cos(row), np.sin(row), tmp)
+            self.model.evaluate_into(self.instrument, geom, np.cos(row), np.sin(row), tmp)
             acc += tmp
         np.multiply(acc, 1.0 / xi.shape[0], out=out, casting="unsafe")
         return out

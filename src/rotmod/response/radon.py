@@ -48,7 +48,7 @@ from rotmod._validate import as_int, as_scalar
 from rotmod.errors import ModelValidityError, ParameterError, RotmodError
 from rotmod.io import response_store as fmt
 from rotmod.limits import check_memory
-from rotmod.profiles.base import ProjectedGeometry
+from rotmod.profiles.base import CAST_BYTES, ProjectedGeometry
 from rotmod.response._plan import distinct_bins, fold_half_turn, repeat_half_turn
 from rotmod.response.materialised import MaterialisedResponse
 from rotmod.response.operator import ResponseOperator
@@ -615,7 +615,8 @@ class RadonResponse(ResponseOperator):
             tau = mu * h * q_nodes
         table = np.empty((n_x, n_w, n_q), dtype=self.dtype)
         half = n_x // 2 + 1
-        rows_per_call = max(1, (1 << 21) // n_w)
+        # About CAST_BYTES of values per call: a short call, so Ctrl-C stops the build soon.
+        rows_per_call = max(1, CAST_BYTES // 8 // n_w)
         zeros_w = np.zeros(n_w)
         one, zero = np.ones(1), np.zeros(1)
         model = self.model

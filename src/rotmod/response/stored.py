@@ -250,7 +250,8 @@ def save_response(
     partial = fmt.partial_path(path)
     # The lock keeps a write_response of the same path from losing its .partial store here.
     with PathLock(path):
-        shutil.rmtree(partial, ignore_errors=True)
+        if fmt.check_partial(partial):  # an earlier run's, never a folder of the user's
+            shutil.rmtree(partial)
         meta = response.metadata()
         kind.write(partial, response, meta, chunks)
         fmt.write_axes(partial, meta, response.instrument, response.grid, response.time_bins)

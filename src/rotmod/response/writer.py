@@ -122,7 +122,7 @@ def _write_locked(path: Path, plan: ResponsePlan, meta: dict[str, Any], chunks: 
                   overwrite: bool, scheduler: Any, client: Any, progress: bool,
                   on_chunk: Any) -> StoredResponse:
     partial = fmt.partial_path(path)
-    if partial.exists():
+    if fmt.check_partial(partial):
         arr, old = fmt.open_partial(partial)
         plan.spec.matches(old)
         chunks = tuple(arr.chunks[1:])

@@ -280,7 +280,8 @@ def _detectors(d: Any, material: Any = None) -> Any:
         raise ConfigError(
             f"detector_material: the [detector_material] table is required with "
             f"detectors.thickness = {d['thickness']!r} (the counting probability needs the "
-            "detectors' attenuation), e.g. [detector_material] name = \"NaI\"")
+            "detectors' attenuation), e.g. [detector_material] name = \"NaI\", density = "
+            "\"3.67 g/cm3\"")
     return arr.__class__(arr.positions, arr.diameter, H, material)
 
 

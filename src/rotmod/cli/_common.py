@@ -351,9 +351,9 @@ def _inside(a: Path, b: Path) -> bool:
 
 
 def _clash(a: Path, b: Path) -> str | None:
-    """How ``a`` and ``b`` overlap (``None``: they do not)."""
+    """How ``a`` and ``b`` overlap, in words (``None``: they do not)."""
     if _same(a, b):
-        return "is"
+        return "is also"
     if _inside(a, b):
         return "is inside"
     if _inside(b, a):
@@ -432,28 +432,28 @@ def check_files(inputs: dict[str, Any], outputs: dict[str, Any], overwrite: bool
     for name in stores:
         if name in outs:
             res[name] = store_paths(as_store_path(outs[name]))
-            check_partial(res[name][0])  # whatever is in the way, said before any work
     names = list(outs.items())
     for k, (name, p) in enumerate(names):
         taken = [(p, "")] + [(q, f" (its writer also uses {str(q)!r})")
                              for q in res.get(name, ())]
         for q, whose in taken:
             for iname, i in ins.items():
-                how = _clash(q, i)
-                if how:
+                if how := _clash(q, i):
                     raise UserError(
-                        f"{name} {str(p)!r}{whose} {how} {iname} {str(i)!r}, an input of this "
-                        "command; write the result to another path (--overwrite never "
-                        "replaces an input)")
+                        f"{name} {str(p)!r}{whose} {how} an input of this command "
+                        f"({iname} {str(i)!r}); write the result to another path "
+                        "(--overwrite never replaces an input)")
             for oname, o in names[:k]:
                 for r in (o, *res.get(oname, ())):
-                    how = _clash(q, r)
-                    if how:
+                    if how := _clash(q, r):
                         raise UserError(
-                            f"{name} {str(p)!r}{whose} {how} {oname} {str(r)!r}, another "
-                            "output of this command; give each output its own path")
+                            f"{name} {str(p)!r}{whose} {how} another output of this "
+                            f"command ({oname} {str(r)!r}); give each output its own path")
         if checked is None or name not in checked.outputs:
             (check_plot if name in plots else check_output)(p, overwrite, what=name)
+    for name in stores:
+        if name in outs:
+            check_partial(res[name][0])  # whatever else is in the way, said before any work
     return Files(ins, outs, overwrite, res)
 
 

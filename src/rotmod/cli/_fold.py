@@ -43,10 +43,10 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
-    files = check_files({"event list": args.events},
+    files = check_files({"EVENTS": args.events},
                         {"--output": args.output, "--plot": args.plot}, args.overwrite,
                         plots=("--plot",))
-    src, out, plot = files["event list"], files["--output"], files["--plot"]
+    src, out, plot = files["EVENTS"], files["--output"], files["--plot"]
     if args.bins < 1:
         raise UserError(f"--bins: must be >= 1, got {args.bins}")
     events = read_events(src)

@@ -158,6 +158,14 @@ def inputs(tmp_path_factory):
     return d
 
 
+#: ``rotmod`` with Ctrl-C raising KeyboardInterrupt, as in a terminal, even where this test
+#: runs with SIGINT ignored (a job started in the background by a shell inherits that, and
+#: Python then keeps it ignored).
+_AS_IN_A_TERMINAL = ("import runpy, signal, sys; "
+                     "signal.signal(signal.SIGINT, signal.default_int_handler); "
+                     "sys.argv[0] = 'rotmod'; runpy.run_module('rotmod.cli', run_name='__main__')")
+
+
 def _interrupt(argv, marker, cwd):
     """Run ``rotmod argv``; once a stderr line holds ``marker`` (its work starts), let it work
     :data:`WORK_SECONDS`, send SIGINT; return the exit code, the seconds it took to stop and
@@ -167,7 +175,7 @@ def _interrupt(argv, marker, cwd):
     path = os.pathsep.join([str(Path(rotmod.__file__).parents[1]),
                             os.environ.get("PYTHONPATH", "")])
     env = dict(os.environ, PYTHONPATH=path, ROTMOD_MEMORY_BUDGET="64GB")
-    proc = subprocess.Popen([sys.executable, "-m", "rotmod.cli", *map(str, argv)], cwd=cwd,
+    proc = subprocess.Popen([sys.executable, "-c", _AS_IN_A_TERMINAL, *map(str, argv)], cwd=cwd,
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)
     lines: list[str] = []

@@ -35,10 +35,11 @@ from rotmod.profiles import base as profiles_base
 from rotmod.profiles.base import project
 from rotmod.sky import PointSources
 
-#: Seconds from SIGINT to the exit.  Measured 0.7-1.6 s (median 1.2 s over 8 runs) on 2
-#: cores at a load average of 6-8 (docs/reliability.md): a kernel call is at most ~0.5 s of
-#: one core and the interpreter's exit ~0.3 s.  5 s is three times the worst of those, for
-#: a CI machine of 2 cores shared with other jobs.
+#: Seconds from SIGINT to the exit.  Measured on 2 cores at a load average of 10 (five
+#: processes per core; docs/reliability.md): medians 1.2-1.5 s per command, at most 2.55 s
+#: over 20 runs, of which 1.0-1.6 s is the interpreter's exit (an idle process with the same
+#: modules); a kernel call is at most ~0.4 s of one core.  5 s is twice the worst, for a CI
+#: machine of 2 cores shared with other jobs.
 STOP_SECONDS = 5.0
 #: Seconds the command works (after the line that says its work starts) before the SIGINT.
 WORK_SECONDS = 1.0

@@ -112,6 +112,9 @@ def test_two_outputs_on_one_path_are_refused(capsys, folder, command, first, sec
      "--output '{d}/sub' holds an input of this command (--instrument '{d}/sub/inst.toml')"),
     (["response", "-i", "{d}/out.zarr.partial", "-o", "{d}/out.zarr"],
      "--output '{d}/out.zarr' (its writer also uses '{d}/out.zarr.partial') is also an input"),
+    # A preset's file is the input that -i names.
+    (["design", "-i", "paper", "-o", str(preset_path("paper"))],
+     "is also an input of this command (--instrument '" + str(preset_path("paper")) + "')"),
     # Two names of one file: a symbolic link to the input.
     (["fold", "{d}/link.fits", "-o", "{d}/ev.fits"],
      "--output '{d}/ev.fits' is also an input of this command (EVENTS '{d}/link.fits')"),

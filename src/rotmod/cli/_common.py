@@ -20,7 +20,7 @@ from rotmod.errors import RotmodError
 from rotmod.io import figures as io_figures
 from rotmod.io import tables as io_tables
 from rotmod.io.atomic import check_overwrite
-from rotmod.io.config import list_presets, load_instrument_config
+from rotmod.io.config import list_presets, load_instrument_config, preset_path
 from rotmod.io.response_store import as_store_path, check_partial, store_paths
 from rotmod.progress import Progress
 from rotmod.registry import Registry
@@ -399,8 +399,8 @@ def check_files(inputs: dict[str, Any], outputs: dict[str, Any], overwrite: bool
     ----------
     inputs, outputs : dict
         Option or argument name (as the message should say it) -> path, or ``None`` for one
-        not given.  An input given as ``-i``/``--instrument`` counts only when it is a file
-        or a folder (else it names a preset).
+        not given.  An input given as ``-i``/``--instrument`` may name a preset (its file is
+        the input).
     overwrite : bool
         ``--overwrite``.
     stores : tuple of str
@@ -425,7 +425,11 @@ def check_files(inputs: dict[str, Any], outputs: dict[str, Any], overwrite: bool
             continue
         p = Path(value)
         if name in ("-i", "--instrument") and not (p.exists() or p.is_symlink()):
-            continue  # a preset (load_instrument_config says what is wrong with a name)
+            # A preset: its file is the input (load_instrument_config says what is wrong
+            # with a name that is neither).
+            with contextlib.suppress(RotmodError):
+                ins[name] = preset_path(str(value))
+            continue
         ins[name] = check_input(p, name)
     outs = {name: Path(v) for name, v in outputs.items() if v is not None}
     res = dict(reserved or {})

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from rotmod import Instrument
 from rotmod.cli import main
 from rotmod.config import ConfigError
 from rotmod.errors import ParameterError
+from rotmod.io import response_store as fmt
 from rotmod.io import write_events
 from rotmod.io.atomic import NAME_MAX, sibling
 from rotmod.io.config import load_instrument_config, preset_path
@@ -42,6 +44,18 @@ def test_a_partial_store_that_is_not_rotmods_is_named_and_kept(capsys, tmp_path)
                        energy=122.0)
     assert (stale / "notes.txt").read_text() == "mine"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.zarr.partial"]
+
+
+def test_an_unfinished_store_without_its_array_is_named(tmp_path) -> None:
+    # rotmod's metadata but no array P (an unfinished Radon table's store): a KeyError 'P'
+    # (exit 1, "a bug") before; a new dense store's .partial form is now made whole before
+    # it gets its name, so an interrupted start cannot leave one.
+    partial = tmp_path / "r.zarr.partial"
+    fmt.write_table(partial, {"shape": [1, 2]}, np.full((2, 3), 0.5))
+    with pytest.raises(ParameterError, match="is an unfinished rotmod store with nothing to "
+                       "resume"):
+        write_response(tmp_path / "r.zarr", Instrument.paper(), SkyGrid((2, 2), 1.0), 12,
+                       energy=122.0)
 
 
 def test_names_near_the_length_limit_are_written(capsys, tmp_path) -> None:

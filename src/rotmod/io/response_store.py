@@ -58,7 +58,7 @@ import astropy.units as u
 import numpy as np
 
 from rotmod.errors import ParameterError, RotmodError
-from rotmod.io.atomic import check_overwrite, replace_dir, sibling
+from rotmod.io.atomic import atomic_dir, check_overwrite, replace_dir, sibling
 from rotmod.io.lock import lock_path
 from rotmod.io.provenance import git_commit
 from rotmod.sky.celestial import CelestialGrid
@@ -240,19 +240,26 @@ def create_dense(partial: Path, meta: dict[str, Any], chunks: tuple[int, int]) -
     """A new store at ``partial`` with an empty (NaN) array ``P`` of ``meta["shape"]``,
     chunks ``(n_det, *chunks)``, and an empty folder of done markers; returns the array."""
     nd, nt, nn = meta["shape"]
-    g = _new_group(partial, meta)
-    arr = g.create_array(
-        "P", shape=(nd, nt, nn), chunks=(nd, *chunks), dtype=meta["dtype"], fill_value=np.nan,
-        compressors=_compressors(), dimension_names=DIMS,
-    )
-    (partial / _DONE).mkdir()
-    return arr
+    # Made whole in a temporary folder and renamed: an interrupted start never leaves a
+    # .partial store without its array to resume.
+    with atomic_dir(partial) as tmp:
+        g = _new_group(tmp, meta)
+        g.create_array(
+            "P", shape=(nd, nt, nn), chunks=(nd, *chunks), dtype=meta["dtype"],
+            fill_value=np.nan, compressors=_compressors(), dimension_names=DIMS,
+        )
+        (tmp / _DONE).mkdir()
+    return _zarr().open_group(str(partial), mode="r+")["P"]
 
 
 def open_partial(partial: Path) -> tuple[Any, dict[str, Any]]:
     """The array ``P`` and metadata of an unfinished store (to resume writing it)."""
     g = _zarr().open_group(str(partial), mode="r+")
     meta = _read_meta(g, partial)
+    if "P" not in g:
+        raise ParameterError(
+            f"{str(partial)!r} is an unfinished rotmod store with nothing to resume (no array "
+            "P: a Radon table's, or a run stopped as it began); remove it and run again")
     (partial / _DONE).mkdir(exist_ok=True)
     return g["P"], meta
 

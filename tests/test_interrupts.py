@@ -175,7 +175,10 @@ def _interrupt(argv, marker, cwd):
     # budget that lets the sizes start (they are interrupted long before they need it).
     path = os.pathsep.join([str(Path(rotmod.__file__).parents[1]),
                             os.environ.get("PYTHONPATH", "")])
-    env = dict(os.environ, PYTHONPATH=path, ROTMOD_MEMORY_BUDGET="64GB")
+    # Two of numba's threads (CI's cores) at most: the sizes below then run for seconds
+    # however many cores the machine has.
+    env = dict(os.environ, PYTHONPATH=path, ROTMOD_MEMORY_BUDGET="64GB",
+               NUMBA_NUM_THREADS=str(min(2, os.cpu_count() or 1)))
     proc = subprocess.Popen([sys.executable, "-c", _AS_IN_A_TERMINAL, *map(str, argv)], cwd=cwd,
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True)

@@ -367,18 +367,15 @@ def flight(detector_response):
     return cols, one
 
 
-def test_sliced_rates_are_each_slice_through_its_transmission(flight, detector_response):
+def test_sliced_rates_are_each_slice_through_its_transmission(flight) -> None:
     """A flight's columns predict, in each slice, the counts of the one-interval columns
     with that slice's transmission multiplied in (an independent path: the transmission
-    applied to the response's columns, not to the photons), to rounding."""
+    applied to the response's columns, as ``spectral_columns`` does for one interval, not
+    to the photons per slice in one product), to rounding."""
     cols, one = flight
     assert cols.shape == (N_SLICE, 7, 12, CHANNELS.size - 1)
     model = PowerLaw(1e-3, -2.2)
     rates = cols.rates(0, model)
-    resp = build_response(_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
-    each = spectral_columns(resp, (4.0, 60.0), detector_response,
-                            transmission=cols.transmission[2])
-    np.testing.assert_allclose(rates[2], each.rates(0, model), rtol=1e-12, atol=1e-15)
     for s in range(N_SLICE):
         t = cols.transmission[s][:, :, None, None]
         each = SpectralColumns(one.columns * t, one.redistribution, one.energies,
@@ -390,12 +387,15 @@ def test_template_fit_recovers_asimov_scales_and_spectrum(flight) -> None:
     """On expected counts (an Asimov data set) of a source and three time-variable
     background components with injected scales, the fit with one free scale per component
     returns the truth: the likelihood's maximum is there exactly, and the optimiser stops
-    within ~1e-3 sigma of it (its tolerance, 1e-6 in -2 ln L), so 0.02 sigma.  Its errors --
-    the spectral ones from the profile's curvature, the scales' marginal ones from the
-    profile's derivatives -- equal the inverse Hessian of the joint likelihood in all five
-    parameters, computed here directly by central differences (3 %: both are finite
-    differences of a near-quadratic function).  Holding the same background constant in
-    time biases the amplitude by many sigma: the template is what removes it."""
+    within ~1e-3 sigma of it (its tolerance, 1e-6 in -2 ln L; measured 2e-6 sigma).  Its
+    errors -- the spectral ones from the profile's curvature, the scales' marginal ones from
+    the profile's derivatives -- equal the inverse Hessian of the joint likelihood in all
+    five parameters, computed here directly by central differences (1 %: both are finite
+    differences at 0.3 sigma of a near-quadratic function; measured 4e-4.  The scales'
+    errors with the spectrum held, without the profile's derivatives, are 16-48 % smaller
+    and would fail).  Holding the same background constant in
+    time biases the amplitude by many sigma: the template is what removes it.  One template
+    with a scale per detector is recovered as exactly."""
     cols, _ = flight
     n_c = cols.shape[-1]
     tmpl = _templates(n_c)
@@ -408,9 +408,9 @@ def test_template_fit_recovers_asimov_scales_and_spectrum(flight) -> None:
                       background_free="component")
     err = fit.errors[0]
     assert fit.converged
-    assert abs(fit.models[0].index - truth.index) < 0.02 * err["index"]
-    assert abs(fit.models[0].K - truth.K) < 0.02 * err["K"]
-    assert np.all(np.abs(fit.scales - scales) < 0.02 * fit.scale_errors)
+    assert abs(fit.models[0].index - truth.index) < 2e-3 * err["index"]
+    assert abs(fit.models[0].K - truth.K) < 2e-3 * err["K"]
+    assert np.all(np.abs(fit.scales - scales) < 2e-3 * fit.scale_errors)
     np.testing.assert_allclose(fit.background, bkg[:, None, :] * np.ones((1, 7, 1)),
                                rtol=1e-3)
 
@@ -430,11 +430,21 @@ def test_template_fit_recovers_asimov_scales_and_spectrum(flight) -> None:
             hess[i, j] = (nll2(p0 + d[0] + d[1]) - nll2(p0 + d[0] - d[1])
                           - nll2(p0 - d[0] + d[1]) + nll2(p0 - d[0] - d[1])) / (4 * h[i] * h[j])
     joint = np.sqrt(np.diag(2.0 * np.linalg.inv(hess)))
-    np.testing.assert_allclose([err["K"], err["index"], *fit.scale_errors], joint, rtol=0.03)
+    np.testing.assert_allclose([err["K"], err["index"], *fit.scale_errors], joint, rtol=0.01)
     flat = {k: np.broadcast_to(v.mean(axis=0), v.shape) for k, v in tmpl.items()}
     held = fit_spectra(cols, mu, expo, [PowerLaw(4e-3, -1.6)], background=flat,
                        background_free="component")
     assert abs(held.models[0].K - truth.K) > 5 * held.errors[0]["K"]
+    # One template (the components' sum) with a scale per detector: recovered as well.
+    per_det = np.linspace(0.8, 1.4, 7)
+    total = sum(tmpl.values())
+    mu_d = expected_counts(cols, expo, [truth], background=total[:, None, :]
+                           * per_det[None, :, None])
+    det = fit_spectra(cols, mu_d, expo, [PowerLaw(4e-3, -1.6)], background=total,
+                      background_free="detector")
+    assert det.scales.shape == (7,)
+    assert np.all(np.abs(det.scales - per_det) < 2e-3 * det.scale_errors)
+    assert abs(det.models[0].index - truth.index) < 2e-3 * det.errors[0]["index"]
 
 
 def test_constant_altitude_reduces_to_the_constant_level_fit(flight) -> None:
@@ -443,7 +453,8 @@ def test_constant_altitude_reduces_to_the_constant_level_fit(flight) -> None:
     the slices' sum -- the sliced likelihood differs from the summed one by a constant (the
     sum is sufficient when every slice's expectation is proportional to its exposure), so
     the same maximum and curvature, up to the optimiser's tolerance (~1e-3 sigma, tested
-    at 0.01 sigma and 0.5 % of the errors).  Levels = template x scales."""
+    at 2e-3 sigma and 1e-3 of the errors; measured 2e-6 sigma and 1e-7).  Levels =
+    template x scales."""
     cols, bare = flight
     trans = np.broadcast_to(cols.transmission[1], cols.transmission.shape)
     steady = SpectralColumns(bare.columns, bare.redistribution, bare.energies,
@@ -460,8 +471,8 @@ def test_constant_altitude_reduces_to_the_constant_level_fit(flight) -> None:
     summed = fit_spectra(one, y.sum(axis=0), expo.sum(axis=0), [PowerLaw(4e-3, -1.6)])
     for p in ("K", "index"):
         e = summed.errors[0][p]
-        assert abs(sliced.models[0].parameters[p] - summed.models[0].parameters[p]) < 0.01 * e
-        assert sliced.errors[0][p] == pytest.approx(e, rel=5e-3)
+        assert abs(sliced.models[0].parameters[p] - summed.models[0].parameters[p]) < 2e-3 * e
+        assert sliced.errors[0][p] == pytest.approx(e, rel=1e-3)
     np.testing.assert_allclose(sliced.background[0], summed.background, rtol=1e-3,
                                atol=1e-6 * summed.background.max())
     np.testing.assert_allclose(sliced.scales * tmpl[0], summed.scales, rtol=1e-3,

@@ -158,8 +158,17 @@ def main() -> None:
     ap.add_argument("--nodes", type=int, default=48, help="true-energy nodes")
     ap.add_argument("--channels", type=int, default=24, help="energy channels")
     ap.add_argument("--photons", type=int, default=2000, help="detector MC photons per node")
+    ap.add_argument("--fits", default="template,constant,levels,folded",
+                    help="comma-separated fits to run")
+    ap.add_argument("--seed", type=int, default=2026, help="seed of the Poisson draws")
+    ap.add_argument("--no-image", action="store_true", help="skip the images")
     ap.add_argument("--out", default=None, help="JSON file for the results")
+    ap.add_argument("--merge", nargs="+", default=None,
+                    help="only summarise these runs' JSON files together")
     args = ap.parse_args()
+    if args.merge:
+        merge(args.merge)
+        return
     t0 = time.time()
     s = setup(args)
     t_setup = time.time() - t0
@@ -172,6 +181,7 @@ def main() -> None:
     fits = {"template": {"background": tmpl, "background_free": "component"},
             "constant": {"background": flat, "background_free": "component"},
             "levels": {}, "folded": {}}
+    fits = {k: fits[k] for k in args.fits.split(",")}
     # The flight's folded counts (slices summed): the sources through the flight's mean
     # transmission (equal slices), one interval, a constant level per detector and channel.
     folded = SpectralColumns(cols.columns * cols.transmission.mean(axis=0)[..., None, None],
@@ -218,13 +228,14 @@ def main() -> None:
                           zip(names, a["scales"], a["scale_errors"], strict=True))
                  if a["scales"] else "") + f" ({a['time_s']:.1f} s)")
     report["asimov"] = asimov
-    rng = np.random.default_rng(2026)
+    rng = np.random.default_rng(args.seed)
     for r in range(args.n):
         y = rng.poisson(mu)
         row: dict = {}
         t1 = time.time()
-        row["image_offset_deg"], row["image_contrast"] = image(s, y)
-        row["image_s"] = time.time() - t1
+        if not args.no_image:
+            row["image_offset_deg"], row["image_contrast"] = image(s, y)
+            row["image_s"] = time.time() - t1
         for name, kw in fits.items():
             t1 = time.time()
             f = fit_spectra(*data(name, y), [START], **kw)
@@ -236,8 +247,8 @@ def main() -> None:
                 row[name]["scales"] = f.scales.tolist()
                 row[name]["scale_errors"] = f.scale_errors.tolist()
         report["realisations"].append(row)
-        print(f"{r:3d} image {row['image_offset_deg']:.2f} deg "
-              f"(x{row['image_contrast']:.2f}); " + "; ".join(
+        print(f"{r:3d} " + ("" if args.no_image else f"image {row['image_offset_deg']:.2f} "
+              f"deg (x{row['image_contrast']:.2f}); ") + "; ".join(
             f"{n} {row[n]['index']:.3f}+-{row[n]['index_err']:.3f} ({row[n]['time_s']:.1f} s)"
             for n in fits), flush=True)
     summarise(report, list(fits), names)
@@ -252,49 +263,69 @@ def summarise(report: dict, fits: list[str], names: list[str]) -> None:
     rows = report["realisations"]
     if not rows:
         return
-    n = len(rows)
     truth = {"K": TRUTH.K, "index": TRUTH.index}
+    summary: dict = {}
+    report["summary"] = summary
+    if all("image_offset_deg" in r for r in rows):
+        image_summary(report, rows)
+    print(f"{'fit':>9} {'param':>6} {'mean':>11} {'median err':>11} {'mean pull':>10} "
+          f"{'pull std':>9} {'in 1 sigma':>11} {'in 1.645':>11} {'median s':>9}")
+    for name in fits:
+        fit_summary(summary, rows, name, names, truth)
+
+
+def image_summary(report: dict, rows: list) -> None:
+    n = len(rows)
     off = np.array([r["image_offset_deg"] for r in rows])
     con = np.array([r["image_contrast"] for r in rows])
     print(f"\nimage: brightest pixel on the source's in {np.sum(off < 0.5)}/{n} "
           f"(median offset {np.median(off):.2f} deg; source pixel / brightest other: median "
           f"{np.median(con):.2f}, min {con.min():.2f})")
-    print(f"{'fit':>9} {'param':>6} {'mean':>11} {'median err':>11} {'mean pull':>10} "
-          f"{'pull std':>9} {'in 1 sigma':>11} {'median s':>9}")
-    summary = {}
-    for name in fits:
-        summary[name] = {}
-        for p in ("index", "K"):
-            v = np.array([r[name][p] for r in rows])
-            e = np.array([r[name][f"{p}_err"] for r in rows])
-            pull = (v - truth[p]) / e
-            t = np.median([r[name]["time_s"] for r in rows])
-            summary[name][p] = {"mean": float(v.mean()), "median_err": float(np.median(e)),
-                                "mean_pull": float(pull.mean()),
-                                "pull_std": float(pull.std(ddof=1)),
-                                "in1": int(np.sum(np.abs(pull) < 1)), "n": n,
-                                "median_time_s": float(t)}
-            print(f"{name:>9} {p:>6} {v.mean():>11.4g} {np.median(e):>11.3g} "
-                  f"{pull.mean():>10.2f} {pull.std(ddof=1):>9.2f} "
-                  f"{np.sum(np.abs(pull) < 1):>5d}/{n:<5d} {t:>9.1f}")
-        if "scales" in rows[0][name]:
-            sc = np.array([r[name]["scales"] for r in rows])
-            se = np.array([r[name]["scale_errors"] for r in rows])
-            tr = np.array([TRUE_SCALES[k] for k in names])
-            pull = (sc - tr) / se
-            summary[name]["scales"] = {
-                k: {"mean": float(sc[:, j].mean()), "median_err": float(np.median(se[:, j])),
-                    "mean_pull": float(pull[:, j].mean()),
-                    "pull_std": float(pull[:, j].std(ddof=1))}
-                for j, k in enumerate(names)}
-            print(f"{'':>9} scales " + "; ".join(
-                f"{k} {sc[:, j].mean():.4f} (err {np.median(se[:, j]):.4f}, pull "
-                f"{pull[:, j].mean():+.2f} +- {pull[:, j].std(ddof=1):.2f})"
-                for j, k in enumerate(names)))
-    report["summary"] = summary
     report["image"] = {"on_pixel": int(np.sum(off < 0.5)), "n": n,
                        "median_offset_deg": float(np.median(off)),
                        "median_contrast": float(np.median(con)), "min_contrast": float(con.min())}
+
+
+def fit_summary(summary: dict, rows: list, name: str, names: list[str], truth: dict) -> None:
+    """Bias (mean pull), pull width and coverage of one fit's index and K, and its scales."""
+    n = len(rows)
+    summary[name] = {}
+    for p in ("index", "K"):
+        v = np.array([r[name][p] for r in rows])
+        e = np.array([r[name][f"{p}_err"] for r in rows])
+        pull = (v - truth[p]) / e
+        t = np.median([r[name]["time_s"] for r in rows])
+        k1, k9 = int(np.sum(np.abs(pull) < 1)), int(np.sum(np.abs(pull) < 1.645))
+        summary[name][p] = {"mean": float(v.mean()), "median_err": float(np.median(e)),
+                            "mean_pull": float(pull.mean()), "pull_std": float(pull.std(ddof=1)),
+                            "in1": k1, "in90": k9, "n": n, "median_time_s": float(t)}
+        print(f"{name:>9} {p:>6} {v.mean():>11.4g} {np.median(e):>11.3g} "
+              f"{pull.mean():>10.2f} {pull.std(ddof=1):>9.2f} {k1:>5d}/{n:<5d} "
+              f"{k9:>5d}/{n:<5d} {t:>9.1f}")
+    if "scales" in rows[0][name]:
+        sc = np.array([r[name]["scales"] for r in rows])
+        se = np.array([r[name]["scale_errors"] for r in rows])
+        pull = (sc - np.array([TRUE_SCALES[k] for k in names])) / se
+        summary[name]["scales"] = {
+            k: {"mean": float(sc[:, j].mean()), "median_err": float(np.median(se[:, j])),
+                "mean_pull": float(pull[:, j].mean()), "pull_std": float(pull[:, j].std(ddof=1)),
+                "in1": int(np.sum(np.abs(pull[:, j]) < 1))}
+            for j, k in enumerate(names)}
+        print(f"{'':>9} scales " + "; ".join(
+            f"{k} {sc[:, j].mean():.4f} (err {np.median(se[:, j]):.4f}, pull "
+            f"{pull[:, j].mean():+.2f} +- {pull[:, j].std(ddof=1):.2f}, in 1 sigma "
+            f"{np.sum(np.abs(pull[:, j]) < 1)}/{n})" for j, k in enumerate(names)))
+
+
+def merge(paths: list[str]) -> None:
+    """Summarise the realisations of several runs' JSON files together (the fits they all
+    hold)."""
+    reports = [json.load(open(p)) for p in paths]
+    rows = [r for rep in reports for r in rep["realisations"]]
+    fits = [f for f in ("template", "constant", "levels", "folded")
+            if all(f in r for r in rows)]
+    report = {"realisations": rows}
+    summarise(report, fits, list(TRUE_SCALES))
 
 
 if __name__ == "__main__":

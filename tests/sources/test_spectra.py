@@ -392,7 +392,7 @@ def test_template_fit_recovers_asimov_scales_and_spectrum(flight) -> None:
     the profile's derivatives -- equal the inverse Hessian of the joint likelihood in all
     five parameters, computed here directly by central differences (1 %: both are finite
     differences at 0.3 sigma of a near-quadratic function; measured 4e-4.  The scales'
-    errors with the spectrum held, without the profile's derivatives, are 16-48 % smaller
+    errors with the spectrum held, without the profile's derivatives, are 5-48 % smaller
     and would fail).  Holding the same background constant in
     time biases the amplitude by many sigma: the template is what removes it.  One template
     with a scale per detector is recovered as exactly."""

@@ -18,7 +18,11 @@ redistribution given an interaction (:mod:`rotmod.spectral.detector`).
 per detector and channel (constant over the mask-angle bins), fitted, not given: for each
 trial of the spectral parameters the backgrounds are profiled out exactly
 (:func:`rotmod.sources.likelihood.maximise`), and the spectral parameters minimise ``-2 ln L``
-(:func:`rotmod.spectral.minimise_statistic`, the one optimiser of every spectral fit).
+(:func:`rotmod.spectral.minimise_statistic`, the one optimiser of every spectral fit).  For a
+balloon flight cut into time slices, the sources' transmission through the air is given per
+slice (:func:`spectral_columns`) and the background as templates in time and energy (e.g.
+:meth:`rotmod.spectral.background.BalloonBackground.flight_components`) whose scales the same
+fit frees per component, per detector, or per detector and channel.
 
 :func:`extract_spectrum` makes one source's spectrum as a coded-mask pipeline does: per
 channel, its rate fitted with the other sources and the background, its error, and the

@@ -333,3 +333,193 @@ def test_extraction_bad_input(two_sources) -> None:
                          models=[PowerLaw(), Gaussian(1e-3, 5000.0, 10.0)])
     with pytest.raises(ParameterError, match="error must be"):
         RateSpectrum([1.0, 2.0], [1.0, 0.0], 10.0)
+
+
+# A flight cut into time slices: the background as a time-variable template (fit_spectra).
+
+N_SLICE = 4
+
+
+def _templates(n_c: int) -> dict[str, np.ndarray]:
+    """Three background components with different shapes in time and energy (counts/s per
+    detector, ``(n_slice, n_c)``): a continuum rising through the flight, a falling soft one,
+    a constant hard one -- as a balloon's atmospheric continuum, CXB and internal
+    background do when it sinks."""
+    e = np.sqrt(CHANNELS[1:] * CHANNELS[:-1])
+    t = np.arange(N_SLICE)[:, None]
+    return {"continuum": (1.0 + 0.15 * t) * 0.3 * (e / 100.0) ** -1.3,
+            "soft": (1.0 - 0.2 * t) * 0.2 * (e / 100.0) ** -2.5,
+            "internal": np.ones((N_SLICE, 1)) * 0.05 * (e / 100.0) ** -0.5}
+
+
+@pytest.fixture(scope="module")
+def flight(detector_response):
+    """One source 4 deg off axis over four slices of 12 mask-angle bins, its transmission
+    falling by slice (the balloon sinks, the source sets), as sliced columns; and the same
+    columns for one interval (no transmission)."""
+    resp = build_response(_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
+    depth = np.array([4.0, 5.0, 6.5, 8.0])[:, None, None]   # g/cm2 along the line of sight
+    trans = np.exp(-depth * 0.15 * (NODES / 100.0) ** -0.35)
+    cols = spectral_columns(resp, (4.0, 60.0), detector_response, transmission=trans)
+    # The sliced columns keep the response's own columns (the transmission apart).
+    one = SpectralColumns(cols.columns, cols.redistribution, cols.energies,
+                          cols.channel_edges, cols.theta)
+    return cols, one
+
+
+def test_sliced_rates_are_each_slice_through_its_transmission(flight) -> None:
+    """A flight's columns predict, in each slice, the counts of the one-interval columns
+    with that slice's transmission multiplied in (an independent path: the transmission
+    applied to the response's columns, as ``spectral_columns`` does for one interval, not
+    to the photons per slice in one product), to rounding."""
+    cols, one = flight
+    assert cols.shape == (N_SLICE, 7, 12, CHANNELS.size - 1)
+    model = PowerLaw(1e-3, -2.2)
+    rates = cols.rates(0, model)
+    for s in range(N_SLICE):
+        t = cols.transmission[s][:, :, None, None]
+        each = SpectralColumns(one.columns * t, one.redistribution, one.energies,
+                               one.channel_edges, one.theta)
+        np.testing.assert_allclose(rates[s], each.rates(0, model), rtol=1e-12, atol=1e-15)
+
+
+def test_template_fit_recovers_asimov_scales_and_spectrum(flight) -> None:
+    """On expected counts (an Asimov data set) of a source and three time-variable
+    background components with injected scales, the fit with one free scale per component
+    returns the truth: the likelihood's maximum is there exactly, and the optimiser stops
+    within ~1e-3 sigma of it (its tolerance, 1e-6 in -2 ln L; measured 2e-6 sigma).  Its
+    errors -- the spectral ones from the profile's curvature, the scales' marginal ones from
+    the profile's derivatives -- equal the inverse Hessian of the joint likelihood in all
+    five parameters, computed here directly by central differences (1 %: both are finite
+    differences at 0.3 sigma of a near-quadratic function; measured 4e-4.  The scales'
+    errors with the spectrum held, without the profile's derivatives, are 5-48 % smaller
+    and would fail).  Holding the same background constant in
+    time biases the amplitude by many sigma: the template is what removes it.  One template
+    with a scale per detector is recovered as exactly."""
+    cols, _ = flight
+    n_c = cols.shape[-1]
+    tmpl = _templates(n_c)
+    scales = np.array([1.3, 0.7, 1.0])
+    truth = PowerLaw(2e-3, -2.0)
+    expo = np.full((N_SLICE, 12), 300.0)
+    bkg = sum(a * t for a, t in zip(scales, tmpl.values(), strict=True))
+    mu = expected_counts(cols, expo, [truth], background=bkg)
+    fit = fit_spectra(cols, mu, expo, [PowerLaw(4e-3, -1.6)], background=tmpl,
+                      background_free="component")
+    err = fit.errors[0]
+    assert fit.converged
+    assert abs(fit.models[0].index - truth.index) < 2e-3 * err["index"]
+    assert abs(fit.models[0].K - truth.K) < 2e-3 * err["K"]
+    assert np.all(np.abs(fit.scales - scales) < 2e-3 * fit.scale_errors)
+    np.testing.assert_allclose(fit.background, bkg[:, None, :] * np.ones((1, 7, 1)),
+                               rtol=1e-3)
+
+    def nll2(p: np.ndarray) -> float:
+        m = expected_counts(cols, expo, [PowerLaw(p[0], p[1])],
+                            background=sum(a * t for a, t in zip(p[2:], tmpl.values(),
+                                                                 strict=True)))
+        return 2.0 * float(np.sum(m - mu * np.log(m)))
+
+    p0 = np.array([truth.K, truth.index, *scales])
+    h = 0.3 * np.array([err["K"], err["index"], *fit.scale_errors])
+    n = p0.size
+    hess = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            d = [np.eye(n)[i] * h[i], np.eye(n)[j] * h[j]]
+            hess[i, j] = (nll2(p0 + d[0] + d[1]) - nll2(p0 + d[0] - d[1])
+                          - nll2(p0 - d[0] + d[1]) + nll2(p0 - d[0] - d[1])) / (4 * h[i] * h[j])
+    joint = np.sqrt(np.diag(2.0 * np.linalg.inv(hess)))
+    np.testing.assert_allclose([err["K"], err["index"], *fit.scale_errors], joint, rtol=0.01)
+    flat = {k: np.broadcast_to(v.mean(axis=0), v.shape) for k, v in tmpl.items()}
+    held = fit_spectra(cols, mu, expo, [PowerLaw(4e-3, -1.6)], background=flat,
+                       background_free="component")
+    assert abs(held.models[0].K - truth.K) > 5 * held.errors[0]["K"]
+    # One template (the components' sum) with a scale per detector: recovered as well.
+    per_det = np.linspace(0.8, 1.4, 7)
+    total = sum(tmpl.values())
+    mu_d = expected_counts(cols, expo, [truth], background=total[:, None, :]
+                           * per_det[None, :, None])
+    det = fit_spectra(cols, mu_d, expo, [PowerLaw(4e-3, -1.6)], background=total,
+                      background_free="detector")
+    assert det.scales.shape == (7,)
+    assert np.all(np.abs(det.scales - per_det) < 2e-3 * det.scale_errors)
+    assert abs(det.models[0].index - truth.index) < 2e-3 * det.errors[0]["index"]
+
+
+def test_constant_altitude_reduces_to_the_constant_level_fit(flight) -> None:
+    """A flight at constant altitude (the same transmission and background in every slice):
+    the template fit with a scale per detector and channel is the constant-level fit of
+    the slices' sum -- the sliced likelihood differs from the summed one by a constant (the
+    sum is sufficient when every slice's expectation is proportional to its exposure), so
+    the same maximum and curvature, up to the optimiser's tolerance (~1e-3 sigma, tested
+    at 2e-3 sigma and 1e-3 of the errors; measured 2e-6 sigma and 1e-7).  Levels =
+    template x scales."""
+    cols, bare = flight
+    trans = np.broadcast_to(cols.transmission[1], cols.transmission.shape)
+    steady = SpectralColumns(bare.columns, bare.redistribution, bare.energies,
+                             bare.channel_edges, bare.theta, trans)
+    one = SpectralColumns(bare.columns * trans[0][:, :, None, None], bare.redistribution,
+                          bare.energies, bare.channel_edges, bare.theta)
+    tmpl = np.broadcast_to(sum(t[0] for t in _templates(steady.shape[-1]).values()),
+                           (N_SLICE, steady.shape[-1]))
+    expo = np.full((N_SLICE, 12), 200.0)
+    truth = PowerLaw(2e-3, -2.0)
+    y = np.random.default_rng(5).poisson(expected_counts(steady, expo, [truth],
+                                                         background=tmpl))
+    sliced = fit_spectra(steady, y, expo, [PowerLaw(4e-3, -1.6)], background=tmpl)
+    summed = fit_spectra(one, y.sum(axis=0), expo.sum(axis=0), [PowerLaw(4e-3, -1.6)])
+    for p in ("K", "index"):
+        e = summed.errors[0][p]
+        assert abs(sliced.models[0].parameters[p] - summed.models[0].parameters[p]) < 2e-3 * e
+        assert sliced.errors[0][p] == pytest.approx(e, rel=1e-3)
+    np.testing.assert_allclose(sliced.background[0], summed.background, rtol=1e-3,
+                               atol=1e-6 * summed.background.max())
+    np.testing.assert_allclose(sliced.scales * tmpl[0], summed.scales, rtol=1e-3,
+                               atol=1e-6 * summed.background.max())
+
+
+def test_template_bad_input(flight, detector_response) -> None:
+    cols, one = flight
+    n_c = cols.shape[-1]
+    y = np.zeros(cols.shape)
+    expo = np.ones((N_SLICE, 12))
+    tmpl = _templates(n_c)
+    start = [PowerLaw()]
+    with pytest.raises(ParameterError, match=r"background\['soft'\] must have shape"):
+        fit_spectra(cols, y, expo, start, background={**tmpl, "soft": np.ones((3, n_c))},
+                    background_free="component")
+    with pytest.raises(ParameterError, match=r"background\['background'\] must have shape"):
+        fit_spectra(cols, y, expo, start, background=np.ones(n_c))  # no time shape
+    with pytest.raises(ParameterError, match="must be finite rates >= 0"):
+        fit_spectra(cols, y, expo, start, background=-tmpl["soft"])
+    with pytest.raises(ParameterError, match="must be finite rates >= 0"):
+        fit_spectra(cols, y, expo, start, background=np.full((N_SLICE, n_c), np.nan))
+    with pytest.raises(ParameterError, match="is 0 everywhere"):
+        fit_spectra(cols, y, expo, start, background=np.zeros((N_SLICE, n_c)))
+    with pytest.raises(ParameterError, match="background_free must be one of"):
+        fit_spectra(cols, y, expo, start, background=tmpl, background_free="channel")
+    with pytest.raises(ParameterError, match="needs a background template"):
+        fit_spectra(cols, y, expo, start, background_free="component")
+    with pytest.raises(ParameterError, match="takes one template"):
+        fit_spectra(cols, y, expo, start, background=tmpl, background_free="detector")
+    with pytest.raises(ParameterError, match="off_counts"):
+        fit_spectra(cols, y, expo, start, background=tmpl["soft"],
+                    off_counts=np.zeros((7, n_c)), off_exposure=10.0)
+    with pytest.raises(ParameterError, match=r"counts must have shape \(n_slice"):
+        fit_spectra(cols, y[0], expo, start)
+    with pytest.raises(ParameterError, match="exposure must be"):
+        fit_spectra(cols, y, np.ones((N_SLICE + 1, 12)), start)
+    with pytest.raises(ParameterError, match="counts must be finite"):
+        fit_spectra(cols, -np.ones(cols.shape), expo, start)
+    with pytest.raises(ParameterError, match="time slices are fitted with fit_spectra"):
+        extract_spectrum(cols, y, expo)
+    with pytest.raises(ParameterError, match="background must broadcast"):
+        expected_counts(cols, expo, [PowerLaw()], background=np.ones((N_SLICE + 1, n_c)))
+    # An unsliced fit takes (n_c,) or (n_det, n_c) templates and nothing with time.
+    with pytest.raises(ParameterError, match=r"must have shape \(24,\) or \(7, 24\)"):
+        fit_spectra(one, y[0], np.ones(12), start, background=tmpl["soft"])
+    resp = build_response(_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
+    with pytest.raises(ParameterError, match="transmission must broadcast"):
+        spectral_columns(resp, (4.0, 60.0), detector_response,
+                         transmission=np.ones((2, 3, 5)))

@@ -298,6 +298,14 @@ def test_balloon_background_components_and_flight():
     flight = bg.flight_rates(resp, det, [30.0, 32.5, 35.0], step=0.5)
     np.testing.assert_allclose(flight[0], bg.rates(resp, det, 30.0), rtol=1e-12)
     np.testing.assert_allclose(flight[2], bg.rates(resp, det, 35.0), rtol=1e-12)
+    # Each component along the flight (the fit's templates) is that component at the grid's
+    # altitudes, and midway between two grid altitudes the mean of the two (linear).
+    parts = bg.flight_components(resp, det, [30.0, 30.25, 32.5, 35.0], step=0.5)
+    for k in comp:
+        np.testing.assert_allclose(parts[k][3], comp[k], rtol=1e-12)
+        np.testing.assert_allclose(parts[k][0], deep[k], rtol=1e-12)
+        np.testing.assert_allclose(parts[k][1], 0.5 * (deep[k] + bg.components(
+            resp, det, 30.5)[k]), rtol=1e-12)
     # A mask stopping everything from above leaves the albedo and the CXB's (zero) share
     # from below.
     shut = BalloonBackground(atm, mask_opacity=1.0).components(resp, det, 35.0)

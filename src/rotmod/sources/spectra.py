@@ -18,7 +18,11 @@ redistribution given an interaction (:mod:`rotmod.spectral.detector`).
 per detector and channel (constant over the mask-angle bins), fitted, not given: for each
 trial of the spectral parameters the backgrounds are profiled out exactly
 (:func:`rotmod.sources.likelihood.maximise`), and the spectral parameters minimise ``-2 ln L``
-(:func:`rotmod.spectral.minimise_statistic`, the one optimiser of every spectral fit).
+(:func:`rotmod.spectral.minimise_statistic`, the one optimiser of every spectral fit).  For a
+balloon flight cut into time slices, the sources' transmission through the air is given per
+slice (:func:`spectral_columns`) and the background as templates in time and energy (e.g.
+:meth:`rotmod.spectral.background.BalloonBackground.flight_components`) whose scales the same
+fit frees per component, per detector, or per detector and channel.
 
 :func:`extract_spectrum` makes one source's spectrum as a coded-mask pipeline does: per
 channel, its rate fitted with the other sources and the background, its error, and the
@@ -36,7 +40,7 @@ effect of the spacing).
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -60,8 +64,8 @@ from rotmod.spectral.spectrum import (
 )
 
 __all__ = [
-    "SourceSpectraFit", "SpectralColumns", "expected_counts", "extract_spectrum", "fit_spectra",
-    "fold_channels", "spectral_columns",
+    "BACKGROUND_FREE", "SourceSpectraFit", "SpectralColumns", "expected_counts",
+    "extract_spectrum", "fit_spectra", "fold_channels", "spectral_columns",
 ]
 
 
@@ -81,6 +85,12 @@ class SpectralColumns:
     channel_edges : ndarray, shape (n_c + 1,)
     theta : ndarray, shape (n_src,)
         Zenith angles (deg).
+    transmission : ndarray, shape (n_slice, n_src, n_e), optional
+        For a flight cut into time slices (each folded into mask-angle bins): the fraction
+        of each source's photons at each node energy that reach the instrument in each
+        slice (the atmosphere above a balloon changes with its altitude and the source's
+        zenith angle).  The counts then gain a leading slice axis.  None: one interval (any
+        transmission is then part of ``columns``).
     """
 
     columns: np.ndarray
@@ -88,19 +98,28 @@ class SpectralColumns:
     energies: np.ndarray
     channel_edges: np.ndarray
     theta: np.ndarray
+    transmission: np.ndarray | None = None
 
     @property
-    def shape(self) -> tuple[int, int, int]:
-        """``(n_det, n_time, n_channels)`` of the counts it predicts."""
-        return (*self.columns.shape[2:], self.redistribution.shape[2])
+    def shape(self) -> tuple[int, ...]:
+        """``(n_det, n_time, n_channels)`` of the counts it predicts, ``(n_slice, n_det,
+        n_time, n_channels)`` for a flight's time slices."""
+        one = (*self.columns.shape[2:], self.redistribution.shape[2])
+        return one if self.transmission is None else (self.transmission.shape[0], *one)
 
     def rates(self, k: int, model: SpectralModel) -> np.ndarray:
-        """Counts per second ``(n_det, n_time, n_c)`` of source ``k`` with spectrum ``model``."""
+        """Counts per second (:attr:`shape`) of source ``k`` with spectrum ``model``."""
         flux = model.node_weights(self.energies)
-        n_det, n_t, n_c = self.shape
-        # sum_e F_e col[e, d, t] M[e, c], as one (n_det n_t, n_e) x (n_e, n_c) product.
-        m = flux[:, None] * self.redistribution[k]
-        return (self.columns[k].reshape(len(flux), -1).T @ m).reshape(n_det, n_t, n_c)
+        n_e, n_det, n_t = self.columns.shape[1:]
+        cols = self.columns[k].reshape(n_e, -1).T            # (n_det n_t, n_e)
+        if self.transmission is None:
+            # sum_e F_e col[e, d, t] M[e, c], as one (n_det n_t, n_e) x (n_e, n_c) product.
+            return (cols @ (flux[:, None] * self.redistribution[k])).reshape(self.shape)
+        # Per slice s the photons F_e T[s, e]: one (n_det n_t, n_e) x (n_e, n_s n_c) product.
+        m = (self.transmission[:, k] * flux)[:, :, None] * self.redistribution[k]
+        n_s, n_c = m.shape[0], m.shape[2]
+        out = cols @ m.transpose(1, 0, 2).reshape(n_e, n_s * n_c)
+        return np.moveaxis(out.reshape(n_det, n_t, n_s, n_c), 2, 0)
 
 
 def spectral_columns(
@@ -126,7 +145,12 @@ def spectral_columns(
         ``Atmosphere.transmission(nodes[None, :], zenith[:, None], altitude)``
         (:mod:`rotmod.spectral.atmosphere`; ``zenith`` is the source's angle from the local
         vertical, not from the instrument axis).  Default 1: fluxes above the atmosphere are
-        then those at the instrument.
+        then those at the instrument.  Three dimensions, ``(n_slice, n_src, n_e)``: a
+        flight cut into time slices, one transmission per slice (its altitude and the
+        source's zenith angle then; the mean over the slice where they change within it):
+        the columns then predict counts ``(n_slice, n_det, n_time, n_c)``.  The sources'
+        positions in the instrument are the same in every slice (a pointed, tracking
+        gondola).
 
     Returns
     -------
@@ -149,6 +173,8 @@ def spectral_columns(
     if nodes.size < 2:
         raise ParameterError("detector_response must be tabulated at two or more energies")
     theta = np.degrees(position_grid(spec.grid, positions).directions()[0].value)
+    trans = None if transmission is None else _transmission(transmission, theta.size,
+                                                            nodes.size)
     n_det, n_t = response.n_det, response.n_time
     check_memory(8.0 * theta.size * nodes.size * n_det * n_t,
                  f"the columns of {theta.size} sources at {nodes.size} energies",
@@ -158,20 +184,30 @@ def spectral_columns(
         cols[:, e] = np.moveaxis(columns_at(response, positions, energy=energy), 2, 0)
     area = np.pi * det.radius**2 * np.cos(np.radians(theta))
     cols *= area[:, None, None, None]
-    if transmission is not None:
-        try:
-            trans = np.broadcast_to(np.asarray(transmission, dtype=float),
-                                    (theta.size, nodes.size))
-        except ValueError:
-            raise ParameterError(f"transmission must broadcast to (n_sources, n_energies) = "
-                                 f"{(theta.size, nodes.size)}, got shape "
-                                 f"{np.shape(transmission)}") from None
-        if not np.all((trans >= 0) & (trans <= 1)):
-            raise ParameterError("transmission must lie in [0, 1] (a fraction of photons)")
+    if trans is not None and trans.ndim == 2:
         cols *= trans[:, :, None, None]
     red = detector_response.matrix_at(theta)
     return SpectralColumns(cols, red, nodes,
-                           np.asarray(detector_response.channel_edges, dtype=float), theta)
+                           np.asarray(detector_response.channel_edges, dtype=float), theta,
+                           trans if trans is not None and trans.ndim == 3 else None)
+
+
+def _transmission(transmission: Any, n_src: int, n_e: int) -> np.ndarray:
+    """``transmission`` as ``(n_src, n_e)``, or ``(n_slice, n_src, n_e)`` for time slices;
+    a ParameterError names the rule broken."""
+    trans = np.asarray(transmission, dtype=float)
+    want = (n_src, n_e)
+    try:
+        trans = np.broadcast_to(trans, trans.shape[:1] + want if trans.ndim == 3 else want)
+    except ValueError:
+        raise ParameterError(f"transmission must broadcast to (n_sources, n_energies) = "
+                             f"{want}, or be (n_slices, n_sources, n_energies) for a flight's "
+                             f"time slices, got shape {np.shape(transmission)}") from None
+    if not np.all((trans >= 0) & (trans <= 1)):
+        raise ParameterError("transmission must lie in [0, 1] (a fraction of photons)")
+    if trans.ndim == 3 and trans.shape[0] < 1:
+        raise ParameterError("transmission must hold one or more time slices")
+    return np.array(trans)
 
 
 def _check_energy_dependence(instrument: Any, detector_response: DetectorResponse) -> None:
@@ -221,13 +257,23 @@ class SourceSpectraFit:
         Per source, parameters at a search limit.
     covariance : ndarray
         Of all free parameters, sources in order.
-    background : ndarray, shape (n_det, n_c)
-        Background rate (counts/s) per detector and channel at the best fit.
+    background : ndarray, shape (n_det, n_c) or (n_slice, n_det, n_c)
+        Background rate (counts/s) per detector and channel at the best fit (the template
+        times its fitted scales; per slice where the template changes with time).
     loglike : float
         ``ln L`` at the maximum (less the data's constant,
         :func:`rotmod.sources.likelihood.log_likelihood`).
     converged : bool
         As :attr:`rotmod.spectral.SpectralFit.converged`.
+    scales : ndarray
+        The background's fitted normalisations: ``(n_det, n_c)`` for
+        ``background_free="level"`` (without a template, the levels in counts/s),
+        ``(n_det,)`` for ``"detector"``, one per template for ``"component"``.
+    scale_errors : ndarray
+        Their 1-sigma errors, marginal over the spectral parameters: the conditional
+        covariance plus ``J C J^T``, ``C`` the spectral parameters' covariance and ``J`` the
+        profiled scales' derivatives with respect to them (the inverse of the joint
+        Hessian's block, written with the profile).
     """
 
     models: tuple[SpectralModel, ...]
@@ -237,6 +283,12 @@ class SourceSpectraFit:
     background: np.ndarray
     loglike: float
     converged: bool
+    scales: np.ndarray
+    scale_errors: np.ndarray
+
+
+#: How :func:`fit_spectra` frees the background's normalisation.
+BACKGROUND_FREE = ("level", "detector", "component")
 
 
 def fit_spectra(
@@ -246,32 +298,60 @@ def fit_spectra(
     models: Sequence[SpectralModel],
     *,
     free: Sequence[Sequence[str]] | None = None,
+    background: Any = None,
+    background_free: str = "level",
     off_counts: Any = None,
     off_exposure: Any = None,
 ) -> SourceSpectraFit:
     """Fit the sources' spectra to counts per detector, mask-angle bin and channel.
 
-    The background level of each detector and channel is free.  Where it is measured
-    elsewhere -- a burst's background before and after it -- give those counts
-    (``off_counts``, ``off_exposure``): they enter the likelihood as Poisson counts of the
-    same levels, so the levels are fitted to both.  Without them a short, faint-background
-    interval leaves each of the ``n_det x n_c`` levels only the modulation to tell it from the
-    source, and the non-negative levels of nearly empty channels bias the spectrum (measured
-    in benchmarks/spectra_calibration.py).
+    The counts' expectation is the sources' (:meth:`SpectralColumns.rates`) plus a
+    background, unmodulated (the same in every mask-angle bin), whose normalisation is
+    fitted with the spectra -- forward-folded, by the Poisson likelihood; for each trial of
+    the spectral parameters the background's normalisations are profiled out exactly
+    (:func:`rotmod.sources.likelihood.maximise`) and the spectral parameters minimise
+    ``-2 ln L`` (:func:`rotmod.spectral.minimise_statistic`).  ``background`` gives the
+    background's shape -- in time for a flight's slices (e.g.
+    :meth:`rotmod.spectral.background.BalloonBackground.flight_components` at each slice's
+    altitude), in energy and across detectors -- and ``background_free`` what of it is
+    free:
+
+    * ``"level"``: a scale per detector and channel; the template gives the shape in time
+      only.  Without a template, a constant level per detector and channel (counts/s).
+    * ``"detector"``: a scale per detector; the template gives the shape in time and energy.
+    * ``"component"``: one scale per template (e.g. CXB, atmospheric continuum, 511 keV
+      line, internal), shared by every detector.
+
+    Where the background is measured elsewhere -- a burst's background before and after it
+    -- give those counts (``off_counts``, ``off_exposure``, constant levels only): they
+    enter the likelihood as Poisson counts of the same levels, so the levels are fitted to
+    both.  Without them a short, faint-background interval leaves each of the ``n_det x
+    n_c`` levels only the modulation to tell it from the source, and the non-negative levels
+    of nearly empty channels bias the spectrum (measured in
+    benchmarks/spectra_calibration.py).
 
     Parameters
     ----------
     columns : SpectralColumns
-        The sources' energy-resolved response (:func:`spectral_columns`).
-    counts : array_like of int, shape (n_det, n_time, n_c)
-        Counts (e.g. events folded per channel, :func:`fold_channels`).
-    exposure : array_like, shape (n_time,) or (n_det, n_time)
-        Good time (s) per bin.
+        The sources' energy-resolved response (:func:`spectral_columns`; with a
+        per-slice transmission for a flight's time slices).
+    counts : array_like, shape (n_det, n_time, n_c) or (n_slice, n_det, n_time, n_c)
+        Counts (e.g. events folded per channel, :func:`fold_channels`, per time slice);
+        expected counts (an Asimov data set) are accepted too.
+    exposure : array_like
+        Good time (s) per bin: ``(n_time,)`` or ``(n_det, n_time)``; for time slices also
+        ``(n_slice, n_time)`` or ``(n_slice, n_det, n_time)``.
     models : sequence of SpectralModel
         One per source, the start values.
     free : sequence of sequences of str, optional
         Per source the parameters to fit (default all but ``piv``).
-    off_counts : array_like of int, shape (n_det, n_c), optional
+    background : array_like or mapping of str to array_like, optional
+        The background template(s), counts/s (any scale): ``(n_c,)`` or ``(n_det, n_c)``,
+        for time slices ``(n_slice, n_c)`` or ``(n_slice, n_det, n_c)``; a mapping names
+        several components (``background_free="component"``).  Default: flat.
+    background_free : {"level", "detector", "component"}
+        Which normalisations are free (above).
+    off_counts : array_like, shape (n_det, n_c), optional
         Background counts measured without the sources (or with them outside the field).
     off_exposure : float or array_like, shape (n_det,), optional
         Their good time (s); required with ``off_counts``.
@@ -281,16 +361,35 @@ def fit_spectra(
     SourceSpectraFit
     """
     bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure)
-    n_det, _, n_c = columns.shape
-    yv, t3, n_on, use = bins.y, bins.value, bins.n_on, bins.flat
-    groups = Groups(bins.group, t3, n_det * n_c)
-    empty = np.zeros((yv.size, 0))
+    names, tmpl = _templates(background, columns.shape, background_free)
+    if tmpl is not None and off_counts is not None:
+        raise ParameterError("off_counts: a background measured off the source enters as "
+                             "constant levels; with a background template, fit the off "
+                             "interval's counts as time slices of their own")
+    n_det, n_c = columns.shape[-3], columns.shape[-1]
+    yv, n_on, use = bins.y, bins.n_on, bins.flat
+    # Each bin's background column: its exposure times the template there.
+    value = bins.value.copy()
+    if tmpl is not None:
+        per_bin = np.broadcast_to(tmpl[..., None, :], (len(names), *columns.shape))
+        value = per_bin.reshape(len(names), -1)[:, use] * value
+    if background_free == "component":
+        A, groups = value.T, None
+        n_scales: tuple[int, ...] = (len(names),)
+    else:
+        value = value if tmpl is None else value[0]
+        level = background_free == "level"
+        index = bins.group if level else bins.group // n_c
+        groups = Groups(index, value, n_det * n_c if level else n_det)
+        A = np.zeros((yv.size, 0))
+        n_scales = (n_det, n_c) if level else (n_det,)
     state: dict[str, Any] = {"x0": None}
 
     def profile(ms: list[SpectralModel]) -> tuple[float, Any]:
         m0 = np.zeros(yv.size)
-        m0[:n_on] = sum(columns.rates(k, m).ravel()[use] for k, m in enumerate(ms)) * t3[:n_on]
-        best = maximise(empty, yv, m0, state["x0"], groups=groups)
+        m0[:n_on] = sum(columns.rates(k, m).ravel()[use]
+                        for k, m in enumerate(ms)) * bins.value[:n_on]
+        best = maximise(A, yv, m0, state["x0"], groups=groups)
         return best.loglike, best
 
     def statistic(ms: list[SpectralModel]) -> float:
@@ -301,8 +400,103 @@ def fit_spectra(
 
     found = minimise_statistic(statistic, models, free)
     ll, best = profile(list(found.models))
+    scales = best.x
+    # The scales' covariance with the spectral parameters held (the inverse Hessian of
+    # -ln L in the scales), then marginal: + J C J^T, J = d(scales)/d(parameters) along the
+    # profile (central differences at 0.3 sigma, as the parameters' own Hessian steps).
+    if groups is None:
+        cov = best.covariance()
+    else:
+        h_gg = groups.sum(groups.value**2 * yv / np.where(best.mu > 0, best.mu, np.inf)**2)
+        cov = np.diag(np.where(h_gg > 0, 1.0 / np.where(h_gg > 0, h_gg, 1.0), np.inf))
+    jac, inner = _scale_derivatives(profile, found, scales)
+    if inner.size:
+        c = found.covariance[np.ix_(inner, inner)]
+        cov = cov + jac @ c @ jac.T
+    with np.errstate(invalid="ignore"):
+        errs = np.sqrt(np.diag(cov))
+    if background_free == "component":
+        rate = np.einsum("k...,k->...", tmpl, scales)
+    elif tmpl is None:
+        rate = scales.reshape(n_det, n_c)
+    else:
+        rate = tmpl[0] * (scales.reshape(n_det, n_c) if background_free == "level"
+                          else scales[:, None])
     return SourceSpectraFit(found.models, found.errors, found.pegged, found.covariance,
-                            best.x.reshape(n_det, n_c), float(ll), found.converged)
+                            np.array(rate), float(ll),
+                            found.converged, scales.reshape(n_scales),
+                            errs.reshape(n_scales))
+
+
+def _scale_derivatives(profile: Any, found: Any, scales: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """``d(scales)/d(parameter)`` along the profile at the fit, for the parameters with an
+    error (the others are held), by central differences at 0.3 of each one's error; and the
+    indices of those parameters in the fit's covariance."""
+    owner = [(i, p) for i, f in enumerate(found.free) for p in f]
+    err = np.array([found.errors[i][p] for i, p in owner])
+    inner = np.flatnonzero(np.isfinite(err) & (err > 0))
+    jac = np.zeros((scales.size, inner.size))
+    for col, q in enumerate(inner):
+        i, p = owner[q]
+        h = 0.3 * err[q]
+        lo, hi = (list(found.models) for _ in range(2))
+        v = found.models[i].parameters[p]
+        try:
+            hi[i] = found.models[i].with_parameters(**{p: v + h})
+            lo[i] = found.models[i].with_parameters(**{p: v - h})
+        except ParameterError:  # a step outside the model's domain: hold it
+            continue
+        jac[:, col] = (profile(hi)[1].x - profile(lo)[1].x) / (2.0 * h)
+    return jac, inner
+
+
+def _templates(background: Any, shape: tuple[int, ...], free: str
+               ) -> tuple[list[str], np.ndarray | None]:
+    """The background template(s) as ``(n_templates, [n_slice,] n_det, n_c)`` with their
+    names (None without a template), or a ParameterError naming the rule broken."""
+    if free not in BACKGROUND_FREE:
+        raise ParameterError(f"background_free must be one of {BACKGROUND_FREE}, got {free!r}")
+    if background is None:
+        if free != "level":
+            raise ParameterError(f"background_free={free!r} needs a background template "
+                                 "(its shape in time and energy)")
+        return ["level"], None
+    items = (list(background.items()) if isinstance(background, Mapping)
+             else [("background", background)])
+    if not items:
+        raise ParameterError("background must hold at least one template")
+    if free != "component" and len(items) > 1:
+        raise ParameterError(f"background_free={free!r} takes one template; several "
+                             "components need background_free='component' (or give their "
+                             "sum)")
+    sliced = len(shape) == 4
+    n_det, n_c = shape[-3], shape[-1]
+    if sliced:
+        n_s = shape[0]
+        rule = f"({n_s}, {n_c}) or ({n_s}, {n_det}, {n_c}) (n_slice, [n_det,] n_channels)"
+    else:
+        rule = f"({n_c},) or ({n_det}, {n_c}) ([n_det,] n_channels)"
+    out = []
+    for name, t in items:
+        try:
+            a = np.asarray(t, dtype=float)
+        except (TypeError, ValueError):
+            raise ParameterError(f"background[{name!r}] must be numbers") from None
+        if a.ndim == len(shape) - 2:          # no detector axis: the same in every detector
+            a = np.expand_dims(a, -2)
+        if a.ndim != len(shape) - 1 or a.shape[-1] != n_c or a.shape[-2] not in (1, n_det) or (
+                sliced and a.shape[0] != n_s):
+            raise ParameterError(f"background[{name!r}] must have shape {rule}, got "
+                                 f"{np.shape(t)}")
+        if not np.all(np.isfinite(a)) or np.any(a < 0):
+            raise ParameterError(f"background[{name!r}] must be finite rates >= 0 (a "
+                                 "template of counts/s)")
+        if not np.any(a > 0):
+            raise ParameterError(f"background[{name!r}] is 0 everywhere: its scale would be "
+                                 "undefined")
+        out.append(np.broadcast_to(a, (*shape[:-3], n_det, n_c)))
+    return [n for n, _ in items], np.stack(out)
 
 
 @dataclass(frozen=True)
@@ -321,36 +515,36 @@ class _Bins:
 
 
 def _poisson_bins(columns: Any, counts: Any, exposure: Any, models: Sequence[Any],
-                  off_counts: Any, off_exposure: Any, *, integer: bool = True) -> _Bins:
+                  off_counts: Any, off_exposure: Any) -> _Bins:
     """Check the arguments shared by :func:`fit_spectra` and :func:`extract_spectrum` and
-    lay the counts out as :class:`_Bins`; a ParameterError names what is wrong.  ``integer``
-    False accepts real counts (expected counts as data, an Asimov data set)."""
+    lay the counts out as :class:`_Bins`; a ParameterError names what is wrong.  Real counts
+    are accepted (expected counts as data, an Asimov data set): the Poisson likelihood is
+    defined for them."""
     if not isinstance(columns, SpectralColumns):
         raise ParameterError(f"columns must be SpectralColumns, got {type(columns).__name__}")
-    n_det, n_t, n_c = columns.shape
+    shape = columns.shape
+    n_det, n_c = shape[-3], shape[-1]
     y = np.asarray(counts)
-    if y.shape != (n_det, n_t, n_c):
-        raise ParameterError(f"counts must have shape (n_det, n_time, n_channels) = "
-                             f"{(n_det, n_t, n_c)}, got {y.shape}")
-    if not np.all(np.isfinite(y)) or np.any(y < 0) or (integer and np.any(y != np.round(y))):
-        raise ParameterError("counts must be non-negative integers" if integer else
-                             "counts must be finite and non-negative")
-    expo = _exposure(exposure, n_det, n_t)
+    if y.shape != shape:
+        axes = "(n_det, n_time, n_channels)" if len(shape) == 3 else (
+            "(n_slice, n_det, n_time, n_channels)")
+        raise ParameterError(f"counts must have shape {axes} = {shape}, got {y.shape}")
+    if not np.all(np.isfinite(y)) or np.any(y < 0):
+        raise ParameterError("counts must be finite and non-negative")
+    expo = _exposure(exposure, shape[:-1])
     if len(models) != columns.columns.shape[0]:
         raise ParameterError(f"models must give one spectrum per source "
                              f"({columns.columns.shape[0]}), got {len(models)}")
-    use = np.flatnonzero(np.broadcast_to((expo > 0)[:, :, None], y.shape))
+    use = np.flatnonzero(np.broadcast_to((expo > 0)[..., None], y.shape))
     yv = y.astype(float).ravel()[use]
-    t3 = np.broadcast_to(expo[:, :, None], y.shape).ravel()[use]
+    t3 = np.broadcast_to(expo[..., None], y.shape).ravel()[use]
     group = (np.arange(n_det)[:, None, None] * n_c + np.arange(n_c)[None, None, :])
     g_index = np.broadcast_to(group, y.shape).ravel()[use]
     n_on = yv.size
     if off_counts is not None:
         off = np.asarray(off_counts)
-        if off.shape != (n_det, n_c) or not np.all(np.isfinite(off)) or np.any(
-                off < 0) or (integer and np.any(off != np.round(off))):
-            raise ParameterError(f"off_counts must be non-negative "
-                                 f"{'integers' if integer else 'values'} of shape "
+        if off.shape != (n_det, n_c) or not np.all(np.isfinite(off)) or np.any(off < 0):
+            raise ParameterError(f"off_counts must be non-negative values of shape "
                                  f"(n_det, n_channels) = {(n_det, n_c)}")
         if off_exposure is None:
             raise ParameterError("off_exposure (s) is required with off_counts")
@@ -440,8 +634,10 @@ def extract_spectrum(
     subdivide = as_int(subdivide, "subdivide", 1)
     if models is None:
         models = [PowerLaw(1.0, -2.0)] * n_src
-    bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure,
-                         integer=False)
+    if columns.transmission is not None:
+        raise ParameterError("columns: a flight's time slices are fitted with fit_spectra; "
+                             "extract a spectrum from one interval's columns")
+    bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure)
     n_det, _, n_c = columns.shape
     expo = bins.exposure
     live = float(expo.sum(axis=1).mean())
@@ -530,29 +726,46 @@ def _response(nodes: np.ndarray, channel_edges: np.ndarray, node: np.ndarray,
 
 def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[SpectralModel],
                     background: Any = 0.0) -> np.ndarray:
-    """Expected counts ``(n_det, n_time, n_c)`` of the sources' spectra plus a background
-    rate per detector and channel (counts/s, broadcast to ``(n_det, n_c)``)."""
-    n_det, n_t, n_c = columns.shape
-    expo = _exposure(exposure, n_det, n_t)
+    """Expected counts (:attr:`SpectralColumns.shape`) of the sources' spectra plus a
+    background rate per detector and channel (counts/s, broadcast to ``(n_det, n_c)``; for
+    a flight's time slices to ``(n_slice, n_det, n_c)``, where a 2-D rate is ``(n_slice,
+    n_c)``, the same in every detector)."""
+    shape = columns.shape
+    expo = _exposure(exposure, shape[:-1])
     if len(models) != columns.columns.shape[0]:
         raise ParameterError(f"models must give one spectrum per source "
                              f"({columns.columns.shape[0]}), got {len(models)}")
-    rate = sum(columns.rates(k, m) for k, m in enumerate(models)) + np.broadcast_to(
-        np.asarray(background, dtype=float), (n_det, n_c))[:, None, :]
-    return rate * expo[:, :, None]
+    b = np.asarray(background, dtype=float)
+    if len(shape) == 4 and b.ndim == 2:
+        b = b[:, None, :]
+    want = (*shape[:-3], shape[-3], shape[-1])
+    try:
+        b = np.broadcast_to(b, want)
+    except ValueError:
+        raise ParameterError(f"background must broadcast to {want}, got shape "
+                             f"{np.shape(background)}") from None
+    rate = sum(columns.rates(k, m) for k, m in enumerate(models)) + b[..., None, :]
+    return rate * expo[..., None]
 
 
-
-def _exposure(exposure: Any, n_det: int, n_t: int) -> np.ndarray:
-    """``exposure`` as ``(n_det, n_t)`` seconds, or a ParameterError naming the rule."""
+def _exposure(exposure: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``exposure`` as ``shape`` = ``([n_slice,] n_det, n_t)`` seconds, or a ParameterError
+    naming the rule: one value, ``(n_t,)`` or ``(n_det, n_t)``; for time slices also
+    ``(n_slice, n_t)`` or ``(n_slice, n_det, n_t)``."""
+    n_det, n_t = shape[-2:]
     try:
         e = np.asarray(exposure, dtype=float)
-        expo = np.broadcast_to(e, (n_det, n_t)) if e.ndim <= 2 else None
+        if len(shape) == 3 and e.ndim == 2 and e.shape == (shape[0], n_t):
+            e = e[:, None, :]                  # per slice and bin, the same in every detector
+        expo = np.broadcast_to(e, shape) if e.ndim <= len(shape) else None
     except (TypeError, ValueError):
         expo = None
     if expo is None or not np.all(np.isfinite(expo)) or np.any(expo < 0):
+        rule = f"({n_t},) or ({n_det}, {n_t})"
+        if len(shape) == 3:
+            rule += f" or ({shape[0]}, {n_t}) or {shape}"
         raise ParameterError(f"exposure must be finite seconds >= 0: one value, or of shape "
-                             f"({n_t},) or ({n_det}, {n_t})")
+                             f"{rule}")
     return expo
 
 

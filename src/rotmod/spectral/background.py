@@ -506,19 +506,33 @@ class BalloonBackground:
         """Total counts s^-1 per channel at one altitude (km)."""
         return sum(self.components(response, detectors, altitude).values())
 
-    def flight_rates(self, response: DetectorResponse, detectors: DetectorArray,
-                     altitudes: Any, *, step: float = 0.1) -> np.ndarray:
-        """Counts s^-1 per channel along a flight, shape ``(n_times, n_channels)``: the
-        rates tabulated every ``step`` km over the flight's altitude range and interpolated
-        linearly (a time-variable background = this shape x the flight's profile)."""
+    def flight_components(self, response: DetectorResponse, detectors: DetectorArray,
+                          altitudes: Any, *, step: float = 0.1) -> dict[str, np.ndarray]:
+        """Counts s^-1 per channel of each component along a flight: ``"cxb"``,
+        ``"continuum"`` and ``"line"`` (as :meth:`components`), each of shape
+        ``(n_times, n_channels)``.
+
+        The components are tabulated every ``step`` km over the flight's altitude range and
+        interpolated linearly to each altitude (km).  They are the time-variable
+        background's templates: shapes in time and energy whose normalisations a fit frees
+        (:func:`rotmod.sources.spectra.fit_spectra`, ``background_free="component"``).
+        """
         h = as_array(altitudes, "altitudes", lo=0.0, ndim=1)
         st = as_scalar(step, "step", lo=0.001, hi=5.0)
         n = max(int(np.ceil((h.max() - h.min()) / st)), 1)
         grid = np.linspace(h.min(), h.min() + n * st, n + 1)
-        tab = np.array([self.rates(response, detectors, g) for g in grid])
+        tabs = [self.components(response, detectors, g) for g in grid]
         i = np.clip(np.searchsorted(grid, h, side="right") - 1, 0, n - 1)
         f = ((h - grid[i]) / st)[:, None]
-        return (1.0 - f) * tab[i] + f * tab[i + 1]
+        return {k: (1.0 - f) * tab[i] + f * tab[i + 1]
+                for k, tab in ((k, np.array([t[k] for t in tabs])) for k in tabs[0])}
+
+    def flight_rates(self, response: DetectorResponse, detectors: DetectorArray,
+                     altitudes: Any, *, step: float = 0.1) -> np.ndarray:
+        """Counts s^-1 per channel along a flight, shape ``(n_times, n_channels)``: the sum
+        of :meth:`flight_components` (a time-variable background = this shape x the
+        flight's profile)."""
+        return sum(self.flight_components(response, detectors, altitudes, step=step).values())
 
 
 def fit_normalisations(counts: Any, exposure: float,

@@ -346,8 +346,14 @@ def _same(a: Path, b: Path) -> bool:
 
 
 def _inside(a: Path, b: Path) -> bool:
-    """Whether ``a`` is within the folder ``b`` (``b`` replaced or written removes ``a``)."""
-    return b.resolve() in a.resolve().parents
+    """Whether ``a`` is within the folder ``b`` (``b`` replaced or written removes ``a``).
+
+    An existing ``b`` is compared with each of ``a``'s existing folders by device and inode,
+    so a case-insensitive file system or a second mount of one folder cannot hide it.
+    """
+    if not b.exists():
+        return b.resolve() in a.resolve().parents
+    return any(q.exists() and os.path.samefile(q, b) for q in a.resolve().parents)
 
 
 def _clash(a: Path, b: Path) -> str | None:

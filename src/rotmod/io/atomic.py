@@ -21,7 +21,9 @@ import contextlib
 import hashlib
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -153,12 +155,35 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
         raise
 
 
+@contextlib.contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """Hold Ctrl-C (and SIGTERM) until the block is done: a pair of renames that must both
+    happen, or neither, is never cut in the middle.  The signal is delivered on exit.
+
+    Only the main thread receives Python's signals, and only POSIX can block them; elsewhere
+    this does nothing.
+    """
+    held = {signal.SIGINT, signal.SIGTERM}
+    if not hasattr(signal, "pthread_sigmask") or (
+            threading.current_thread() is not threading.main_thread()):
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
 def replace_dir(src: str | os.PathLike, dst: str | os.PathLike) -> None:
     """Rename the folder ``src`` to ``dst``, replacing an existing ``dst``.
 
     An existing ``dst`` is first moved into a fresh temporary folder beside it (a name no
     one else holds: never a fixed one such as ``<dst>.old``, which could be the user's), and
-    removed only once ``src`` is in its place.
+    removed only once ``src`` is in its place.  The two renames run with interrupts held, so
+    ``dst`` always holds either the old folder or the new one; if the new one cannot be
+    renamed and the old one cannot be put back, the old one is left where it is and the error
+    says where.
     """
     s, d = Path(src), Path(dst)
     if not (d.exists() or d.is_symlink()):
@@ -166,15 +191,28 @@ def replace_dir(src: str | os.PathLike, dst: str | os.PathLike) -> None:
         return
     trash = Path(tempfile.mkdtemp(prefix=f".{_temp_stem(d)}.old-", dir=d.parent or "."))
     old = trash / "old"
+    kept = False  # the old folder must survive: the new one is not in place
     try:
-        os.replace(d, old)
-        try:
-            os.replace(s, d)
-        except BaseException:
-            os.replace(old, d)  # put the old one back
-            raise
+        with _interrupts_deferred():
+            os.replace(d, old)
+            try:
+                os.replace(s, d)
+            except BaseException as exc:
+                try:
+                    os.replace(old, d)  # put the old one back
+                except BaseException as again:
+                    kept = True
+                    if isinstance(again, OSError):
+                        raise OSError(
+                            f"{str(d)!r} could not be replaced ({exc}) nor restored; the "
+                            f"previous folder is kept at {str(old)!r}") from exc
+                    raise
+                raise
     finally:
-        shutil.rmtree(trash, ignore_errors=True)
+        # Reached with the new folder in place, or the old one back (an interrupt held
+        # during the renames is raised only after them).
+        if not kept:
+            shutil.rmtree(trash, ignore_errors=True)
 
 
 def remove_stale_dirs(folder: str | os.PathLike) -> None:

@@ -164,8 +164,7 @@ def _interrupts_deferred() -> Iterator[None]:
     this does nothing.
     """
     held = {signal.SIGINT, signal.SIGTERM}
-    if not hasattr(signal, "pthread_sigmask") or (
-            threading.current_thread() is not threading.main_thread()):
+    if os.name != "posix" or threading.current_thread() is not threading.main_thread():
         yield
         return
     before = signal.pthread_sigmask(signal.SIG_BLOCK, held)

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_array, as_energy, as_scalar
+from rotmod._validate import as_angle_scalar, as_array, as_energy, as_integers, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.gti import check_gti
 from rotmod.geometry import Instrument
@@ -88,10 +88,8 @@ class EventList:
         det = np.asarray(self.detector)
         if det.shape != (n,):
             raise ParameterError(f"events.detector must have shape ({n},), got {det.shape}")
-        if n and not np.issubdtype(det.dtype, np.integer):
-            if not np.all(det == np.round(det)):
-                raise ParameterError("events.detector must hold integer detector ids")
-        det = det.astype(np.int32)
+        # Detector ids are integers: a float id is accepted only when exactly integral.
+        det = as_integers(det, "events.detector").astype(np.int32)
         n_det = len(self.instrument.detectors)
         if n and (det.min() < 0 or det.max() >= n_det):
             bad = det[(det < 0) | (det >= n_det)][0]

@@ -24,7 +24,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_scalar
+from rotmod._validate import as_angle_scalar, as_integers, as_scalar
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
@@ -125,8 +125,8 @@ class FoldedProfiles:
         c = np.asarray(self.counts)
         if c.ndim != 2:
             raise ParameterError(f"counts must have shape (n_det, n_bins), got {c.shape}")
-        if np.any(c < 0) or not np.all(c == np.round(c)):
-            raise ParameterError("counts must be non-negative integers")
+        # Counts are integers >= 0: a float count is accepted only when exactly integral.
+        c = as_integers(c, "counts", lo=0)
         n_det, n_bins = c.shape
         if n_det != len(self.instrument.detectors):
             raise ParameterError(

@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,7 +48,7 @@ from numba.extending import overload
 from rotmod._validate import as_int, as_scalar
 from rotmod.errors import ModelValidityError, ParameterError, RotmodError
 from rotmod.io import response_store as fmt
-from rotmod.limits import check_memory
+from rotmod.limits import check_memory, check_time
 from rotmod.profiles.base import ProjectedGeometry
 from rotmod.response._plan import distinct_bins, fold_half_turn, repeat_half_turn
 from rotmod.response.materialised import MaterialisedResponse
@@ -506,7 +507,7 @@ class RadonResponse(ResponseOperator):
     def _setup(self, block_bins: int | None, given: np.ndarray | None) -> _Factors:
         inst, tb, dt = self.instrument, self.time_bins, self.dtype
         mask, det = inst.mask, inst.detectors
-        a, b, h, big_l = mask.slat_width, mask.slat_gap, mask.thickness, mask.height
+        h, big_l = mask.thickness, mask.height
         radius, period = det.radius, mask.period
         mu = mask.linear_attenuation(self.energy)
         n_pix = self.n_sky
@@ -547,7 +548,9 @@ class RadonResponse(ResponseOperator):
                      f"a table of {n_x} x {n_w} x {n_q} profile values",
                      hint="raise tolerance, or use a smaller field")
         if given is None:
-            table = self._table(a, b, h, big_l, radius, mu, period, n_x, n_w, k0, dw, q_nodes)
+            sizes = (h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes)
+            self._check_table_time(*sizes)
+            table = self._table(*sizes)
         else:
             table = np.ascontiguousarray(given, dtype=dt)
             if table.shape != (n_x, n_w * n_q):
@@ -599,7 +602,7 @@ class RadonResponse(ResponseOperator):
             n_sub=tb.n_sub, gemm=gemm, q_nodes=q_nodes,
         )
 
-    def _table(self, a, b, h, big_l, radius, mu, period, n_x, n_w, k0, dw, q_nodes):
+    def _table(self, h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes):
         """``Psi[j, k, r] = E(x_j + L w_k, h w_k, mu h q_r)`` flattened to ``(J, K R)``.
 
         ``E(-u, -s) = E(u, s)`` (the mask is symmetric about the gap on the axis), and the
@@ -609,29 +612,50 @@ class RadonResponse(ResponseOperator):
         n_q = q_nodes.size
         x = period / n_x * np.arange(n_x)
         w = (np.arange(n_w) - k0) * dw
-        if math.isinf(mu):
-            tau = np.full(n_q, math.inf)
-        else:
-            tau = mu * h * q_nodes
+        tau = np.full(n_q, math.inf) if math.isinf(mu) else mu * h * q_nodes
         table = np.empty((n_x, n_w, n_q), dtype=self.dtype)
         half = n_x // 2 + 1
         rows_per_call = max(1, (1 << 21) // n_w)
-        zeros_w = np.zeros(n_w)
-        one, zero = np.ones(1), np.zeros(1)
-        model = self.model
         for r in range(n_q):
-            taus = np.full(n_w, tau[r])
             for j0 in range(0, half, rows_per_call):
                 j1 = min(half, j0 + rows_per_call)
-                uc = x[j0:j1, None] + big_l * w[None, :]
-                geom = ProjectedGeometry(uc, np.zeros_like(uc), h * w, zeros_w, taus,
-                                         zeros_w, zeros_w, mu)
-                out = np.empty((j1 - j0, 1, n_w))
-                model.evaluate(self.instrument, geom, one, zero, out)
-                table[j0:j1, :, r] = out[:, 0, :]
+                table[j0:j1, :, r] = self._values(x[j0:j1], w, tau[r], h, big_l, mu)
         for j in range(half, n_x):
             table[j] = table[n_x - j, ::-1]
         return table.reshape(n_x, n_w * n_q)
+
+    def _values(self, x: np.ndarray, w: np.ndarray, tau: float, h: float, big_l: float,
+                mu: float) -> np.ndarray:
+        """``E(x_j + L w_k, h w_k, tau)`` for rows ``x`` and sky coordinates ``w``."""
+        uc = x[:, None] + big_l * w[None, :]
+        zeros_w = np.zeros(w.size)
+        geom = ProjectedGeometry(uc, np.zeros_like(uc), h * w, zeros_w, np.full(w.size, tau),
+                                 zeros_w, zeros_w, mu)
+        out = np.empty((x.size, 1, w.size))
+        self.model.evaluate(self.instrument, geom, np.ones(1), np.zeros(1), out)
+        return out[:, 0, :]
+
+    def _check_table_time(self, h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes) -> None:
+        """Refuse a table that would take longer than the time budget, before it is made.
+
+        A value's cost grows with the shift ``h |w|`` of the slat shadow (8e6/s on the axis,
+        1.5e6/s past a slat width, measured), so the rate is measured here: one row at up to
+        4000 of the table's ``w`` nodes, evenly spread (a few ms, after a call that
+        compiles), at the first optical-depth node (the cost hardly depends on it).
+        """
+        w = (np.arange(n_w) - k0) * dw
+        sample = w[:: max(1, n_w // 4000)]
+        tau = math.inf if math.isinf(mu) else mu * h * float(q_nodes[0])
+        self._values(np.zeros(1), sample[:2], tau, h, big_l, mu)  # compiled before timing
+        t0 = time.perf_counter()
+        self._values(np.zeros(1), sample, tau, h, big_l, mu)
+        per_s = sample.size / max(time.perf_counter() - t0, 1e-9)
+        t_max = float(np.max(np.abs(w)))
+        check_time(float(n_x // 2 + 1) * n_w * q_nodes.size, per_s,
+                   f"a Radon table of {n_x} x {n_w} x {q_nodes.size} profile values (tolerance "
+                   f"{self.tolerance:g}, pixels up to {np.degrees(np.arctan(t_max)):.4g} deg "
+                   "from the axis)", unit="profile values",
+                   hint="raise tolerance, or keep the field further from the horizon")
 
     # -- products --------------------------------------------------------------------------
 

@@ -248,7 +248,13 @@ def fold(
         band = EnergyBand(float(e[good].min()), float(e[good].max())) if good.any() else None
     else:
         band = EnergyBand.coerce(energy_band)
+        in_time = good.copy()
         good &= band.contains(e)
+        if in_time.any() and not good.any():
+            # Not an error (a band may be empty), but all-zero counts are worth a word.
+            log.warning("fold: no event has an energy in the band %g-%g keV (the events in "
+                        "the good-time intervals span %g-%g keV); the folded counts are all 0",
+                        band.e_min, band.e_max, e[in_time].min(), e[in_time].max())
     phase = events.start_phase.to_value(u.rad)
     q = _rotations(t[good], inst.rotation_period, phase)
     k = np.minimum(((q - np.floor(q)) * n).astype(np.int64), n - 1)

@@ -65,6 +65,8 @@ __all__ = ["RadonResponse"]
 #: Chosen so that the measured error stays below the tolerance with a margin: at most 0.86
 #: of it on the paper's whole grid and random geometries (docs/response.md).
 ERROR_LAW = 0.15
+#: The default ``tolerance`` of the Radon operators (largest error of a profile value).
+DEFAULT_TOLERANCE = 1e-4
 #: Share of the tolerance given to the ``q`` (optical depth) interpolation.
 RING_SHARE = 0.1
 #: Most ``q`` nodes (the Chebyshev bound needs more only for absurd fields).
@@ -463,7 +465,7 @@ class RadonResponse(ResponseOperator):
         time_bins: Any = None,
         energy: Any = None,
         *,
-        tolerance: float = 1e-4,
+        tolerance: float = DEFAULT_TOLERANCE,
         dtype: Any = None,
         detectors: Any = None,
         block_bins: int | None = None,

@@ -40,7 +40,7 @@ def _finite(x: np.ndarray, name: str) -> np.ndarray:
         raise ParameterError(f"{name} must hold numbers, got values of type {x.dtype}") from None
     if not ok.all():
         i = np.unravel_index(int(np.argmin(ok)), x.shape)
-        where = i[0] if len(i) == 1 else i
+        where = int(i[0]) if len(i) == 1 else tuple(int(k) for k in i)
         raise ParameterError(f"{name} must be finite, got {x[i]} at index {where} "
                              f"({int(x.size - ok.sum())} of {x.size} values not finite)")
     return x

@@ -51,17 +51,18 @@ ANNOUNCE_SECONDS = 30.0
 
 #: Units of work per second of rotmod's long kernels, used by :func:`check_time`.  Measured
 #: with ``benchmarks/bench_limits.py`` on the development machine (2 cores shared with other
-#: jobs, load average ~5; medians of 3; docs/reliability.md): a faster machine finishes
-#: sooner than estimated, a loaded one later, so the estimates are good to a factor of a few,
-#: enough to tell a minute from a week.
+#: jobs, load average 5-9; medians of 3; docs/reliability.md): a faster machine finishes
+#: sooner than estimated, a loaded one later; measured to within a factor of 2 there, enough
+#: to tell a minute from a week.
 RATES: dict[str, float] = {
     # exact-model profile values (detector x angle x source) in rotmod design's scans:
-    # measured 1.7e6/s on 49 designs x 2 energies x 20000 angles x 12 sources.
+    # measured 1.7e6/s at load 8 on 49 designs x 2 energies x 20000 angles x 12 sources.
     "design_values": 1.7e6,
-    # Monte Carlo photons (simulate_profiles, simulate_observation): measured 4.8e7/s on
-    # 10 sources x 100 angles x 1e4 photons.
-    "mc_photons": 4.5e7,
-    # attitude pieces (AttitudeTable.intervals: one slerp and one SkyCoord each): 600/s.
+    # Monte Carlo photons (simulate_profiles, simulate_observation): measured 4.8e7/s at
+    # load 5 and 2.3-2.6e7/s at load 9 on 10 sources x 100 angles x 1e4 photons.
+    "mc_photons": 3.0e7,
+    # attitude pieces (AttitudeTable.intervals: one slerp and one SkyCoord each): 600/s
+    # at load 5, 510/s at load 9.
     "attitude_pieces": 600.0,
 }
 

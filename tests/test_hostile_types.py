@@ -13,21 +13,13 @@ from rotmod import Instrument
 from rotmod._validate import as_integers
 from rotmod.calibration import LabMeasurement, bins, fit_calibration
 from rotmod.errors import ParameterError, RotmodError
-from rotmod.events import EventList, fold
-from rotmod.io import read_events, read_folded, write_events, write_folded
-from rotmod.montecarlo import simulate_observation
-from rotmod.sky import AttitudeTable, PointSources
+from rotmod.events import EventList
+from rotmod.io import read_events, read_folded
+from rotmod.sky import AttitudeTable
+from tests import test_hostile
 
-
-@pytest.fixture(scope="module")
-def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("types")
-    inst = Instrument.paper()
-    ev = simulate_observation(inst, PointSources([3.0], [20.0], rate=20.0, energy=122.0),
-                              t_stop=120.0, seed=4)
-    write_events(ev, d / "ev.fits")
-    write_folded(fold(ev, 12), d / "f.fits")
-    return d
+#: The hostile tests' event list and folded profiles (one fixture, shared).
+files = test_hostile.files
 
 
 def _replace_column(src, dst, ext, name, fmt, values):

@@ -51,6 +51,9 @@ def test_a_fractional_det_id_is_refused_not_truncated(files, tmp_path) -> None:
     with pytest.raises(ParameterError, match=r"events\.detector must hold integers, got "
                        r"values of type bool"):
         EventList(ref.time[:2], [True, False], ref.energy[:2], ref.instrument, ref.gti)
+    # Checked before the cast to int32, where 2^32 would wrap around to detector 0.
+    with pytest.raises(ParameterError, match=r"must lie in 0\.\.0 .*got 4294967296"):
+        EventList(ref.time[:2], np.array([0, 2**32]), ref.energy[:2], ref.instrument, ref.gti)
 
 
 def test_a_fractional_detector_table_id_is_refused(files, tmp_path) -> None:
@@ -94,7 +97,10 @@ def test_as_integers_refuses_what_is_not_an_integer(value, match) -> None:
 
 def test_as_integers_keeps_integers_and_integral_floats() -> None:
     np.testing.assert_array_equal(as_integers([3.0, -2.0], "x"), [3, -2])
-    assert as_integers(np.array([7], np.int16), "x", lo=0, hi=7).dtype == np.int64
+    ids = np.array([7], np.int16)
+    assert as_integers(ids, "x", lo=0, hi=7) is ids  # integers: checked, not copied
+    with pytest.raises(ParameterError, match="x must hold integers <= 6, got 7"):
+        as_integers(ids, "x", lo=0, hi=6)
 
 
 def _measurement(counts, **kw):

@@ -135,12 +135,12 @@ def as_int(value: Any, name: str, lo: int = 0, hi: int | None = None) -> int:
 
 def as_integers(value: Any, name: str, lo: int | None = None, hi: int | None = None
                 ) -> np.ndarray:
-    """Check that every element of ``value`` is an integer in ``[lo, hi]``; return int64.
+    """Check that every element of ``value`` is an integer in ``[lo, hi]``.
 
-    Integer arrays are taken as they are; floats are accepted only when every one is finite
-    and exactly integral (``2.0``: files often store counts and ids as floats), never
-    rounded or truncated (``0.7`` is refused, not read as ``0``); booleans, strings and other
-    types are refused.
+    Integer arrays are taken as they are (not copied: an event list's ids may be 1e8 long);
+    floats are accepted only when every one is finite and exactly integral (``2.0``: files
+    often store counts and ids as floats) and returned as int64, never rounded or truncated
+    (``0.7`` is refused, not read as ``0``); booleans, strings and other types are refused.
 
     Raises
     ------
@@ -158,12 +158,11 @@ def as_integers(value: Any, name: str, lo: int | None = None, hi: int | None = N
             raise ParameterError(
                 f"{name} must hold integers (floats only when exactly integral), got "
                 f"{arr[bad].ravel()[0]:g}")
-    out = arr.astype(np.int64)
-    for bound, bad_mask, op in ((lo, None if lo is None else out < lo, ">="),
-                                (hi, None if hi is None else out > hi, "<=")):
-        if bound is not None and bad_mask.any():
-            raise ParameterError(
-                f"{name} must hold integers {op} {bound}, got {out[bad_mask].ravel()[0]}")
+    out = arr if np.issubdtype(arr.dtype, np.integer) else arr.astype(np.int64)
+    if lo is not None and np.any(out < lo):
+        raise ParameterError(f"{name} must hold integers >= {lo}, got {out[out < lo].flat[0]}")
+    if hi is not None and np.any(out > hi):
+        raise ParameterError(f"{name} must hold integers <= {hi}, got {out[out > hi].flat[0]}")
     return out
 
 

@@ -89,14 +89,15 @@ class EventList:
         if det.shape != (n,):
             raise ParameterError(f"events.detector must have shape ({n},), got {det.shape}")
         # Detector ids are integers: a float id is accepted only when exactly integral.
-        det = as_integers(det, "events.detector").astype(np.int32)
+        det = as_integers(det, "events.detector")
         n_det = len(self.instrument.detectors)
-        if n and (det.min() < 0 or det.max() >= n_det):
+        if n and (det.min() < 0 or det.max() >= n_det):  # before the cast: no wrap-around
             bad = det[(det < 0) | (det >= n_det)][0]
             raise ParameterError(
                 f"events.detector must lie in 0..{n_det - 1} (the instrument's detectors), "
                 f"got {bad}"
             )
+        det = det.astype(np.int32)
         # Any finite energy is kept (no lower bound): events are selected by the energy
         # window of a fold, not when they are read.
         e = as_energy(self.energy, "events.energy", lo=None, ndim=1).astype(np.float32)

@@ -218,6 +218,22 @@ def test_radon_cli_fov_179_is_refused_over_a_small_budget(capsys, tmp_path) -> N
     assert not list(tmp_path.iterdir())
 
 
+def test_a_response_matrix_is_estimated_before_it_is_computed(capsys, tmp_path,
+                                                               monkeypatch) -> None:
+    # 1 x 360 bins x 490000 pixels of the exact model: ~40-100 s here (the 78400-pixel store
+    # took 35-39 s, load 9), refused over a 1 s budget after the pixels' projection (0.4 s).
+    code, err = _cli(capsys, "response", "--fov", "14", "--pixel", "0.02", "--time-budget",
+                     "1s", "-o", tmp_path / "r.zarr")
+    assert code == 2 and "Traceback" not in err, err
+    assert re.search(r"a response of 1 detector\(s\) x 360 time bins x 490000 pixels \(exact "
+                     r"model, 1 sub-sample\(s\) per bin\) would take about", err), err
+    assert not list(tmp_path.iterdir())  # no store, no .partial, no lock
+    monkeypatch.setenv("ROTMOD_TIME_BUDGET", "1s")
+    build_response(Instrument.paper(), SkyGrid((3, 3), 1.0), 12, energy=122)  # fits
+    with pytest.raises(TimeBudgetError, match=r"x 78400 pixels .* would take about"):
+        build_response(Instrument.paper(), SkyGrid.square(14, 0.05), 1440, energy=122)
+
+
 def test_a_huge_nside_gives_a_finite_estimate() -> None:
     msg = _refused(lambda: HealpixGrid(2**29, 0.0, 0.0, 5.0, Attitude(0.0, 0.0)),
                    MemoryBudgetError, r"HEALPix nside 536870912 pixels within 5 deg")

@@ -30,6 +30,8 @@ import logging
 import math
 import os
 import shutil
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from dask.utils import format_bytes, format_time, parse_bytes, parse_timedelta
@@ -38,7 +40,7 @@ from rotmod.errors import RotmodError
 
 __all__ = ["RATES", "DiskSpaceError", "MemoryBudgetError", "TimeBudgetError", "check_disk",
            "check_memory", "check_time", "format_bytes", "format_size", "free_disk",
-           "memory_budget", "time_budget"]
+           "measure_rate", "memory_budget", "time_budget"]
 
 log = logging.getLogger(__name__)
 
@@ -268,3 +270,17 @@ def check_time(units: float, rate: str | float, what: str, *, unit: str = "",
         log.info("%s: estimated %s (%.3g %s at ~%.2g/s)", what, _duration(seconds),
                  float(units), unit, per_s)
     return seconds
+
+
+def measure_rate(work: Callable[[], object], units: float, repeats: int = 3) -> float:
+    """Units of work per second of ``work()``, a small sample of a long request (a few ms):
+    the median of ``repeats`` timings (one timing of ~1 ms is at a scheduler's mercy), after
+    one untimed call that compiles and warms the caches.  For costs too uneven for a stated
+    rate (:data:`RATES`): a Radon table, a response's profile values."""
+    work()
+    took = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        work()
+        took.append(time.perf_counter() - t0)
+    return units / max(sorted(took)[len(took) // 2], 1e-9)

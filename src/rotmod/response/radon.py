@@ -36,7 +36,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,7 +47,7 @@ from numba.extending import overload
 from rotmod._validate import as_int, as_scalar
 from rotmod.errors import ModelValidityError, ParameterError, RotmodError
 from rotmod.io import response_store as fmt
-from rotmod.limits import check_memory, check_time
+from rotmod.limits import check_memory, check_time, measure_rate
 from rotmod.profiles.base import ProjectedGeometry
 from rotmod.response._plan import distinct_bins, fold_half_turn, repeat_half_turn
 from rotmod.response.materialised import MaterialisedResponse
@@ -642,20 +641,14 @@ class RadonResponse(ResponseOperator):
 
         A value's cost grows with the shift ``h |w|`` of the slat shadow (8e6/s on the axis,
         1.5e6/s past a slat width, measured), so the rate is measured here: one row at up to
-        4000 of the table's ``w`` nodes, evenly spread (the median of 3 timings of a few ms,
-        after a call that compiles), at the first optical-depth node (the cost hardly
-        depends on it).
+        4000 of the table's ``w`` nodes, evenly spread (:func:`rotmod.limits.measure_rate`: a
+        few ms), at the first optical-depth node (the cost hardly depends on it).
         """
         w = (np.arange(n_w) - k0) * dw
         sample = w[:: max(1, n_w // 4000)]
         tau = math.inf if math.isinf(mu) else mu * h * float(q_nodes[0])
-        self._values(np.zeros(1), sample[:2], tau, h, big_l, mu)  # compiled before timing
-        took = []
-        for _ in range(3):  # the median of 3: one timing of ~1 ms is at a scheduler's mercy
-            t0 = time.perf_counter()
-            self._values(np.zeros(1), sample, tau, h, big_l, mu)
-            took.append(time.perf_counter() - t0)
-        per_s = sample.size / max(sorted(took)[1], 1e-9)
+        per_s = measure_rate(lambda: self._values(np.zeros(1), sample, tau, h, big_l, mu),
+                             sample.size)
         t_max = float(np.max(np.abs(w)))
         check_time(float(n_x // 2 + 1) * n_w * q_nodes.size, per_s,
                    f"a Radon table of {n_x} x {n_w} x {q_nodes.size} profile values (tolerance "

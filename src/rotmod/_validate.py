@@ -18,7 +18,7 @@ from rotmod.errors import ParameterError
 
 __all__ = [
     "as_angle", "as_angle_scalar", "as_array", "as_distance", "as_energy", "as_energy_scalar",
-    "as_float_dtype", "as_int", "as_scalar",
+    "as_float_dtype", "as_int", "as_integers", "as_scalar",
 ]
 
 
@@ -131,6 +131,39 @@ def as_int(value: Any, name: str, lo: int = 0, hi: int | None = None) -> int:
         rule = f"an integer >= {lo}" if hi is None else f"an integer in [{lo}, {hi}]"
         raise ParameterError(f"{name} must be {rule}, got {value!r}")
     return int(value)
+
+
+def as_integers(value: Any, name: str, lo: int | None = None, hi: int | None = None
+                ) -> np.ndarray:
+    """Check that every element of ``value`` is an integer in ``[lo, hi]``.
+
+    Integer arrays are taken as they are (not copied: an event list's ids may be 1e8 long);
+    floats are accepted only when every one is finite and exactly integral (``2.0``: files
+    often store counts and ids as floats) and returned as int64, never rounded or truncated
+    (``0.7`` is refused, not read as ``0``); booleans, strings and other types are refused.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``name``, the first offending value and the rule.
+    """
+    arr = np.asarray(value)
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
+                                 or np.issubdtype(arr.dtype, np.floating)):
+        raise ParameterError(f"{name} must hold integers, got values of type {arr.dtype}")
+    if np.issubdtype(arr.dtype, np.floating):
+        with np.errstate(invalid="ignore"):
+            bad = ~(np.isfinite(arr) & (np.abs(arr) < 2.0**63) & (arr == np.round(arr)))
+        if bad.any():
+            raise ParameterError(
+                f"{name} must hold integers (floats only when exactly integral), got "
+                f"{arr[bad].ravel()[0]:g}")
+    out = arr if np.issubdtype(arr.dtype, np.integer) else arr.astype(np.int64)
+    if lo is not None and np.any(out < lo):
+        raise ParameterError(f"{name} must hold integers >= {lo}, got {out[out < lo].flat[0]}")
+    if hi is not None and np.any(out > hi):
+        raise ParameterError(f"{name} must hold integers <= {hi}, got {out[out > hi].flat[0]}")
+    return out
 
 
 def as_float_dtype(dtype: Any, name: str = "dtype") -> np.dtype:

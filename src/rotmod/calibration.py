@@ -34,7 +34,15 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_array, as_energy_scalar, as_int, as_scalar
+from rotmod._validate import (
+    as_angle_scalar,
+    as_array,
+    as_distance,
+    as_energy_scalar,
+    as_int,
+    as_integers,
+    as_scalar,
+)
 from rotmod.binning import TimeBinning
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument, disc_flux
@@ -115,15 +123,15 @@ class LabMeasurement:
         object.__setattr__(self, "theta", as_angle_scalar(self.theta, "theta", lo=0.0,
                                                           hi=90.0, hi_open=True) * u.rad)
         object.__setattr__(self, "phi", as_angle_scalar(self.phi, "phi") * u.rad)
-        d = u.Quantity(self.distance, u.cm).value if isinstance(self.distance, u.Quantity) \
-            else float(self.distance)
-        if not d > 0:
-            raise ParameterError(f"distance must be > 0 cm (inf: at infinity), got {d:g} cm")
+        if self.distance is None:  # as_distance would read None as infinity: say it
+            raise ParameterError("distance must be > 0 cm (inf: at infinity), got None")
+        d = float(as_distance(self.distance, 1, "distance")[0])
         object.__setattr__(self, "distance", d)
         object.__setattr__(self, "energy", as_energy_scalar(self.energy, "energy"))
-        k = as_array(self.counts, "counts", lo=0.0, ndim=2)
-        if np.any(k != np.round(k)):
-            raise ParameterError("counts must be whole numbers of events")
+        k = as_integers(self.counts, "counts", lo=0).astype(float)
+        if k.ndim != 2:
+            raise ParameterError(f"counts must be 2-dimensional (n_det, n_bins), got shape "
+                                 f"{k.shape}")
         tb = self.time_bins
         tb = tb if isinstance(tb, TimeBinning) else bins(tb)
         if k.shape[1] != tb.n_bins:
@@ -370,8 +378,13 @@ def fit_calibration(
     for k, v in (start or {}).items():
         if k not in PARAMETERS:
             raise ParameterError(f"start: unknown parameter {k!r}")
-        current[k] = float(u.Quantity(v, PARAMETERS[k][0]).value if isinstance(
-            v, u.Quantity) else v)
+        current[k] = as_scalar(v, f"start[{k!r}]", u.Unit(PARAMETERS[k][0]))
+    n_det = len(instrument.detectors)
+    for i, m in enumerate(measurements):
+        if m.counts.shape[0] != n_det:  # one row per detector, never broadcast
+            raise ParameterError(
+                f"measurements[{i}].counts must have one row per detector of the instrument "
+                f"({n_det}), got {m.counts.shape[0]}")
     theta = np.array([current[n] for n in names])
     k_obs = [m.counts for m in measurements]
     b_obs = [m.background for m in measurements]

@@ -36,6 +36,7 @@ import numpy as np
 from rotmod._validate import as_array, as_energy, as_int, as_scalar
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import DetectorArray, Instrument, Mask
+from rotmod.limits import check_memory, check_time
 from rotmod.materials import Material
 from rotmod.profiles import get_model, project
 
@@ -294,6 +295,16 @@ def scan_designs(
         opaque = not isinstance(mu, u.Quantity) and np.isposinf(float(mu))
         m = np.inf if opaque else as_scalar(mu, "mu", 1 / u.cm, lo=0.0)
         mus = np.full(E.size, m)
+
+    # Sizes before any allocation: one design's profiles (angles x sources, float64, with the
+    # projected geometry's ~4 arrays of that size) in memory, every design's in time.
+    n_src = float(n_theta) * float(n_phi)
+    size = (f"n_angles = {n_angles} angles x n_theta x n_phi = {n_theta} x {n_phi} sources")
+    check_memory(5 * 8.0 * n_angles * n_src + 16.0 * n_src, f"a design scan of {size}",
+                 hint="sample the field with fewer rings, azimuths or angles")
+    check_time(float(len(shapes)) * H.size * mus.size * n_angles * n_src, "design_values",
+               f"a scan of {len(shapes) * H.size} designs x {mus.size} energies x {size}",
+               hint="scan fewer designs or sample the field more coarsely")
 
     # Sources: equal-area rings in the cone theta <= fov/2 (the first ring near the axis).
     half = np.radians(f / 2)

@@ -30,6 +30,7 @@ import argparse
 import contextlib
 import importlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -113,6 +114,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     for name, (_, help_) in SUBCOMMANDS.items():
         if command is None or name == command:
             _module(name).register(sub)  # type: ignore[attr-defined]
+            sub.choices[name].add_argument(
+                "--time-budget", default=None, metavar="DURATION",
+                help="run work estimated to take up to DURATION ('3h', '90m', '2d', seconds "
+                "or 'inf'; default ROTMOD_TIME_BUDGET, else 1h): longer requests are "
+                "refused before they start, with the estimate")
         else:
             sub.add_parser(name, help=help_, add_help=False)
     return parser
@@ -205,7 +211,8 @@ def _run(argv: list[str], interrupted: list[bool]) -> int:
     # The command as given, for the provenance cards of the files a command writes.
     args.command_line = ["rotmod", *argv]
     try:
-        with cli_logging(args.verbose, args.quiet), _compile_notice(args.quiet):
+        with (cli_logging(args.verbose, args.quiet), _compile_notice(args.quiet),
+              _time_budget(getattr(args, "time_budget", None))):
             return int(args.func(args) or EXIT_OK)
     except (RotmodError, OSError) as exc:  # a UserError is a RotmodError
         if interrupted[0] and not args.debug:
@@ -224,6 +231,26 @@ def _run(argv: list[str], interrupted: list[bool]) -> int:
         print(f"rotmod: unexpected error ({type(exc).__name__}); this is a bug, please "
               "report it with the traceback above", file=sys.stderr)
         return EXIT_UNEXPECTED
+
+
+@contextlib.contextmanager
+def _time_budget(text: str | None) -> Iterator[None]:
+    """``--time-budget``: ``ROTMOD_TIME_BUDGET`` for the command's duration, checked before
+    any work by the one place that reads it, :func:`rotmod.limits.time_budget` (loaded like
+    the subcommands, on use: ``rotmod --help`` imports no Dask)."""
+    if text is None:
+        yield
+        return
+    old = os.environ.get("ROTMOD_TIME_BUDGET")
+    os.environ["ROTMOD_TIME_BUDGET"] = text
+    try:
+        importlib.import_module("rotmod.limits").time_budget()
+        yield
+    finally:
+        if old is None:
+            del os.environ["ROTMOD_TIME_BUDGET"]
+        else:
+            os.environ["ROTMOD_TIME_BUDGET"] = old
 
 
 def _compile_notice(quiet: bool) -> contextlib.AbstractContextManager[None]:

@@ -37,6 +37,7 @@ from rotmod.cli._common import (
 from rotmod.profiles import DEFAULT_MODEL, MODELS
 from rotmod.response import RadonResponse, TimeBinning, save_response, write_response
 from rotmod.response.drift import drift_response
+from rotmod.response.radon import DEFAULT_TOLERANCE
 from rotmod.sky import Attitude, AttitudeTable, CelestialGrid, HealpixGrid, SkyGeometry, SkyGrid
 
 
@@ -73,8 +74,9 @@ def register(sub: Any) -> None:
     p.add_argument("-m", "--model", default=None, metavar="NAME",
                    help=f"profile model ({', '.join(MODELS.names())}; default "
                    f"{DEFAULT_MODEL}; radon is always exact)")
-    p.add_argument("--tolerance", type=float, default=1e-4, metavar="DP",
-                   help="radon: largest error of any profile value (default 1e-4)")
+    p.add_argument("--tolerance", type=float, default=None, metavar="DP",
+                   help="radon only: largest error of any profile value (default 1e-4; "
+                   "refused with --operator matrix, which has no interpolation error)")
     add_grid_options(p)
     add_attitude(p)
     p.add_argument("-t", "--exposure", type=quantity("s"), default=None, metavar="SECONDS",
@@ -165,6 +167,11 @@ def run(args: argparse.Namespace) -> int:
                         f"{args.model!r}")
     if args.bins < 1:
         raise UserError(f"--bins: must be >= 1, got {args.bins}")
+    if args.tolerance is not None and args.operator != "radon":
+        raise UserError(f"--tolerance: only with --operator radon (the matrix operator stores "
+                        f"the model's values, with no interpolation error to bound), got "
+                        f"--tolerance {args.tolerance:g}")
+    tolerance = DEFAULT_TOLERANCE if args.tolerance is None else args.tolerance
     att = attitude_of(args)
     if isinstance(att, AttitudeTable) and args.grid == "instrument":
         raise UserError("--attitude: a drifting observation is imaged on the sky; add --grid "
@@ -194,18 +201,18 @@ def run(args: argparse.Namespace) -> int:
         with heartbeat(args, "drift response"):  # drift_response reports no steps
             op = drift_response(inst, grid, bins, intervals, args.model, energy,
                                 dtype=args.dtype, operator=args.operator,
-                                tolerance=args.tolerance)
+                                tolerance=args.tolerance)  # None: the default
         stored = save_response(out, op, overwrite=args.overwrite)
         say(f"rotmod: wrote {out} (shape {stored.n_det} x {stored.n_time} x {stored.n_sky}, "
             f"exposure-weighted over {len(intervals)} attitude pieces)")
         return 0
     if args.operator == "radon":
         with heartbeat(args, "Radon table"):
-            radon = RadonResponse(inst, grid, bins, energy, tolerance=args.tolerance,
+            radon = RadonResponse(inst, grid, bins, energy, tolerance=tolerance,
                                   dtype=args.dtype)
         save_response(out, radon, overwrite=args.overwrite)
         j, kr = radon.table.shape
-        say(f"rotmod: wrote {out} (Radon table {j} x {kr}, tolerance {args.tolerance:g})")
+        say(f"rotmod: wrote {out} (Radon table {j} x {kr}, tolerance {tolerance:g})")
         return 0
     stored = write_response(
         out, inst, grid, bins, args.model, energy, dtype=args.dtype, overwrite=args.overwrite,

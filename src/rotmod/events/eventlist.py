@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_array, as_energy, as_scalar
+from rotmod._validate import as_angle_scalar, as_array, as_energy, as_integers, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.gti import check_gti
 from rotmod.geometry import Instrument
@@ -88,17 +88,16 @@ class EventList:
         det = np.asarray(self.detector)
         if det.shape != (n,):
             raise ParameterError(f"events.detector must have shape ({n},), got {det.shape}")
-        if n and not np.issubdtype(det.dtype, np.integer):
-            if not np.all(det == np.round(det)):
-                raise ParameterError("events.detector must hold integer detector ids")
-        det = det.astype(np.int32)
+        # Detector ids are integers: a float id is accepted only when exactly integral.
+        det = as_integers(det, "events.detector")
         n_det = len(self.instrument.detectors)
-        if n and (det.min() < 0 or det.max() >= n_det):
+        if n and (det.min() < 0 or det.max() >= n_det):  # before the cast: no wrap-around
             bad = det[(det < 0) | (det >= n_det)][0]
             raise ParameterError(
                 f"events.detector must lie in 0..{n_det - 1} (the instrument's detectors), "
                 f"got {bad}"
             )
+        det = det.astype(np.int32)
         # Any finite energy is kept (no lower bound): events are selected by the energy
         # window of a fold, not when they are read.
         e = as_energy(self.energy, "events.energy", lo=None, ndim=1).astype(np.float32)

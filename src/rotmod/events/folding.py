@@ -24,7 +24,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_scalar
+from rotmod._validate import as_angle_scalar, as_integers, as_scalar
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
@@ -125,8 +125,8 @@ class FoldedProfiles:
         c = np.asarray(self.counts)
         if c.ndim != 2:
             raise ParameterError(f"counts must have shape (n_det, n_bins), got {c.shape}")
-        if np.any(c < 0) or not np.all(c == np.round(c)):
-            raise ParameterError("counts must be non-negative integers")
+        # Counts are integers >= 0: a float count is accepted only when exactly integral.
+        c = as_integers(c, "counts", lo=0)
         n_det, n_bins = c.shape
         if n_det != len(self.instrument.detectors):
             raise ParameterError(
@@ -248,7 +248,13 @@ def fold(
         band = EnergyBand(float(e[good].min()), float(e[good].max())) if good.any() else None
     else:
         band = EnergyBand.coerce(energy_band)
+        in_time = good.copy()
         good &= band.contains(e)
+        if in_time.any() and not good.any():
+            # Not an error (a band may be empty), but all-zero counts are worth a word.
+            log.warning("fold: no event has an energy in the band %g-%g keV (the events in "
+                        "the good-time intervals span %g-%g keV); the folded counts are all 0",
+                        band.e_min, band.e_max, e[in_time].min(), e[in_time].max())
     phase = events.start_phase.to_value(u.rad)
     q = _rotations(t[good], inst.rotation_period, phase)
     k = np.minimum(((q - np.floor(q)) * n).astype(np.int64), n - 1)

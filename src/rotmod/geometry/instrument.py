@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,6 +56,37 @@ class Instrument:
             )
         T = as_scalar(self.rotation_period, "instrument.rotation_period", u.s, lo=0, lo_open=True)
         object.__setattr__(self, "rotation_period", T)
+        self._warn_if_mask_misses_detectors()
+
+    def _warn_if_mask_misses_detectors(self) -> None:
+        """Warn when a finite mask, turning about an offset axis, never passes over any
+        detector: sources near the axis then cast no shadow and their profiles are flat.
+
+        Not an error (a deliberate geometry, e.g. a calibration study, may want it); the
+        bound ignores the axis tilt (at most 10 deg: a misalignment).
+        """
+        m = self.mask
+        if m.outline is None:
+            return
+        # The area the turning mask sweeps: a disc of the outline's radius, or of a square's
+        # half-diagonal, about where the axis crosses the mask.
+        reach = m.outline_size * (np.sqrt(2.0) if m.outline == "square" else 1.0)
+        centre = np.array([m.axis_offset_x, m.axis_offset_y])
+        dist = np.hypot(*(self.detectors.positions - centre).T) - self.detectors.radius
+        gap = float(dist.min()) - reach
+        if gap <= 0:
+            return
+        # A ray to a source at zenith theta crosses the slab L tan(theta) to (L + h)
+        # tan(theta) away from its detector point.
+        theta = np.degrees(np.arctan(gap / (m.height + m.thickness)))
+        size = "radius" if m.outline == "circle" else "half-width"
+        warnings.warn(
+            f"instrument: the mask ({m.outline} of {size} {m.outline_size:g} cm turning "
+            f"about an axis offset by ({m.axis_offset_x:g}, {m.axis_offset_y:g}) cm) never "
+            f"passes over a detector: the nearest detector edge is {gap:.3g} cm outside the "
+            f"disc of radius {reach:.3g} cm it sweeps, so sources within "
+            f"{theta:.3g} deg of the axis cast no shadow and their profiles are flat",
+            stacklevel=3)
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Instrument) and self.to_dict() == other.to_dict()

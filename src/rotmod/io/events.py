@@ -37,6 +37,7 @@ import astropy.units as u
 import numpy as np
 from astropy.io import fits
 
+from rotmod._validate import as_integers
 from rotmod.binning import EnergyBand, TimeBinning
 from rotmod.errors import ParameterError, RotmodError
 from rotmod.events import EventList, FoldedProfiles
@@ -335,7 +336,10 @@ def _section_from(cls: type, header: Any, path: Any, ext: str) -> dict[str, Any]
 
 def _read_instrument(hdul: fits.HDUList, header: Any, path: Any, ext: str) -> Instrument:
     det = _ext(hdul, "DETECTORS", path)
-    ids = _col(det.data, "DET_ID", path, "DETECTORS")
+    try:
+        ids = as_integers(_col(det.data, "DET_ID", path, "DETECTORS"), "DETECTORS column DET_ID")
+    except ParameterError as exc:
+        raise RotmodError(f"file {str(path)!r}: {exc}") from None
     order = np.argsort(ids)
     pos = np.stack(
         [_col(det.data, "DETX", path, "DETECTORS"), _col(det.data, "DETY", path, "DETECTORS")],
@@ -516,7 +520,7 @@ def read_events(path: str | os.PathLike) -> EventList:
         try:
             return EventList(
                 time,
-                np.asarray(_col(ev.data, "DET_ID", path, "EVENTS"), dtype=np.int32),
+                _col(ev.data, "DET_ID", path, "EVENTS"),  # checked by EventList, not cast
                 np.asarray(_col(ev.data, "ENERGY", path, "EVENTS"), dtype=np.float32),
                 inst,
                 gti,
@@ -624,7 +628,7 @@ def read_folded(path: str | os.PathLike) -> FoldedProfiles:
         if "NBINS" in h and _num(h, "NBINS", path, "PROFILES") != lo.size:
             raise RotmodError(f"file {str(path)!r}: PROFILES keyword NBINS = {h['NBINS']!r} "
                               f"must equal the number of rows ({lo.size})")
-        counts = np.atleast_2d(_col(tab.data, "COUNTS", path, "PROFILES").T).astype(np.int64)
+        counts = np.atleast_2d(_col(tab.data, "COUNTS", path, "PROFILES").T)  # checked, not cast
         if counts.shape[1] != lo.size:
             counts = counts.reshape(-1, lo.size)
         ex = _col(tab.data, "EXPOSURE", path, "PROFILES").astype(float)

@@ -11,6 +11,7 @@ and writes FITS (``.fits``) or ECSV (``.ecsv``).  An attitude table
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -34,6 +35,9 @@ __all__ = ["read_attitude_table", "write_attitude_table", "write_light_curve",
 
 #: astropy's format of each table extension rotmod writes (anything else: CSV).
 TABLE_FORMATS = {".ecsv": "ascii.ecsv", ".csv": "ascii.csv"}
+#: The file-name endings of an attitude table and astropy's format for each.
+ATTITUDE_FORMATS = {".ecsv": "ascii.ecsv", ".csv": "ascii.csv", ".fits": "fits",
+                    ".fit": "fits", ".fits.gz": "fits"}
 #: The file-name endings of a product table (:func:`write_product_table`) and their form.
 PRODUCT_FORMATS = {".fits": "fits", ".fits.gz": "fits", ".ecsv": "ecsv"}
 
@@ -169,17 +173,37 @@ def write_attitude_table(table: AttitudeTable, path: str | os.PathLike, *,
 def read_attitude_table(path: str | os.PathLike) -> AttitudeTable:
     """Read an attitude table (ECSV or FITS with columns time, ra, dec, roll and units).
 
+    The format is the file name's (``.ecsv``, ``.csv``, ``.fits``/``.fit``/``.fits.gz``),
+    never guessed from the contents: a file of another kind is refused by name, not with
+    astropy's list of every format it knows.
+
     Raises
     ------
     ParameterError
-        Unreadable file or missing columns.
+        Another extension, an unreadable file or missing columns.
     """
+    name = str(path).lower()
+    fmt = next((f for ext, f in ATTITUDE_FORMATS.items() if name.endswith(ext)), None)
+    if fmt is None:
+        raise ParameterError(
+            f"attitude file {str(path)!r}: must be a table named .ecsv, .csv or .fits "
+            f"(columns time, ra, dec, roll), got {Path(path).name!r}")
     try:
-        t = Table.read(path)
-        cols = {c.lower(): t[c] for c in t.colnames}
+        with warnings.catch_warnings():  # a FITS file's first table is the attitude's
+            warnings.filterwarnings("ignore", message="hdu= was not specified")
+            t = Table.read(path, format=fmt)
+    except (OSError, ValueError, TypeError) as exc:
+        raise ParameterError(f"attitude file {str(path)!r}: is not a readable {fmt} table "
+                             f"({type(exc).__name__}: {exc})") from exc
+    cols = {c.lower(): t[c] for c in t.colnames}
+    missing = [k for k in ("time", "ra", "dec", "roll") if k not in cols]
+    if missing:
+        raise ParameterError(f"attitude file {str(path)!r}: needs columns time, ra, dec, "
+                             f"roll; missing {', '.join(missing)}")
+    try:
         q: list[Any] = [u.Quantity(cols[k]) if cols[k].unit else np.asarray(cols[k])
                         for k in ("time", "ra", "dec", "roll")]
-    except (OSError, ValueError, KeyError) as exc:
-        raise ParameterError(f"attitude file {str(path)!r}: needs columns time, ra, dec, "
-                             f"roll ({type(exc).__name__}: {exc})") from exc
+    except (ValueError, TypeError) as exc:
+        raise ParameterError(f"attitude file {str(path)!r}: columns time, ra, dec, roll "
+                             f"must be numbers with units ({exc})") from exc
     return AttitudeTable(*q)

@@ -26,7 +26,7 @@ from rotmod.energy import EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, check_gti
 from rotmod.geometry import Instrument, disc_flux
-from rotmod.limits import check_memory
+from rotmod.limits import check_memory, check_time
 from rotmod.montecarlo import _transport as tr
 from rotmod.progress import ProgressArg, progress_callbacks
 from rotmod.sky.sources import PointSources
@@ -291,6 +291,10 @@ def simulate_profiles(
     check_memory(8.0 * n_cells * (1 + math.ceil(n_photons / chunk_size)),
                  f"a Monte Carlo of {n_det} detectors x {n_t} angles x {n_n} sources",
                  hint="simulate fewer angles or sources at a time")
+    check_time(float(n_cells) * n_photons, "mc_photons",
+               f"a Monte Carlo of n_photons = {n_photons} photons in each of {n_cells} cells "
+               f"({n_det} detectors x {n_t} angles x {n_n} sources)",
+               hint="simulate fewer photons per cell, or fewer angles or sources")
     as_built = not inst.is_ideal or bool(np.isfinite(dist).any()) or poisson
     scale: Any = 1.0
     if as_built:
@@ -532,6 +536,9 @@ def simulate_observation(
     check_memory(2 * 20.0 * total_rate * duration + 16.0 * duration * total_rate / chunk_size,
                  f"an observation of {duration:g} s at {total_rate:g} photons/s",
                  hint="simulate a shorter time (or in several pieces) and fold each")
+    check_time(total_rate * duration, "mc_photons",
+               f"an observation of {duration:g} s at {total_rate:g} photons/s",
+               hint="simulate a shorter time (or in several pieces) and fold each")
     max_dt = np.inf if total_rate == 0 else chunk_size / total_rate
     pieces = []
     for s_, e_ in g:

@@ -6,6 +6,7 @@ bootstrap (:mod:`rotmod.reconstruction.bootstrap`), which both stand on the regi
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,7 @@ import numpy as np
 from rotmod._validate import as_int
 from rotmod.errors import ParameterError
 from rotmod.reconstruction.base import ReconstructionResult, Reconstructor, get_algorithm
-from rotmod.reconstruction.bootstrap import bootstrap_images
+from rotmod.reconstruction.bootstrap import _replica_seconds, bootstrap_images, check_bootstrap
 from rotmod.response.operator import ResponseOperator
 
 __all__ = ["DEFAULT_METHOD", "reconstruct"]
@@ -73,15 +74,20 @@ def reconstruct(
         params["seed"] = own
     if uncertainty not in (None, "bootstrap"):
         raise ParameterError(f"uncertainty must be None or 'bootstrap', got {uncertainty!r}")
-    result = cls(response, data, **params).run()
-    if uncertainty == "bootstrap":
+    if uncertainty == "bootstrap":  # the replicas' memory, before the main run
         n_boot = as_int(n_boot, "n_boot", 2)
+        check_bootstrap(n_boot, response.n_sky)
+    t0 = time.perf_counter()
+    result = cls(response, data, **params).run()
+    seconds = time.perf_counter() - t0  # a replica's cost: the solver's set-up and its run
+    if uncertainty == "bootstrap":
         # A randomised method's own seed stays with the main run: each replica gets one
         # drawn from the bootstrap's stream instead (passing both was issue 11's TypeError).
         shared = {k: v for k, v in params.items() if k != "seed"}
         imgs = bootstrap_images(
             response, data, cls, n_boot=n_boot, seed=boot_ss, redraw=redraw,
-            model_counts=result.model_counts, **shared,
+            model_counts=result.model_counts,
+            seconds_each=_replica_seconds(seconds, result), **shared,
         )
         result.uncertainty = imgs.std(axis=0, ddof=1)
         result.params.update({"uncertainty": "bootstrap", "n_boot": n_boot, "redraw": redraw})

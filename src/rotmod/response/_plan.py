@@ -18,7 +18,7 @@ import numpy as np
 
 from rotmod.binning import TimeBinning
 from rotmod.geometry import Instrument
-from rotmod.limits import check_memory
+from rotmod.limits import check_memory, check_time, measure_rate
 from rotmod.profiles.base import ProfileModel, ProjectedGeometry, project
 from rotmod.response.parallel import block_grid, block_ranges, iter_blocks
 from rotmod.response.spec import ResponseSpec
@@ -166,6 +166,31 @@ class ResponsePlan:
             acc += tmp
         np.multiply(acc, 1.0 / xi.shape[0], out=out, casting="unsafe")
         return out
+
+    def check_time(self, overhead: float = 1.0) -> float:
+        """Refuse computing every value of this plan (a stored or materialised response)
+        when it would take longer than the time budget; return the estimate (s).
+
+        The rate is measured on up to 8000 pixels of one detector and bin (every
+        sub-sample; :func:`rotmod.limits.measure_rate`, ~10 ms): a value's cost depends on
+        the model, the instrument and where the pixels are.  ``overhead`` multiplies the
+        computing time (a store's writing, checksums and read-back).
+
+        Raises
+        ------
+        rotmod.limits.TimeBudgetError
+            With the estimate, naming the response's sizes.
+        """
+        nd, nt, nn = self.shape
+        k = min(nn, 8000)
+        n_sub = self.time_bins.n_sub
+        per_s = measure_rate(lambda: self.block(d=(0, 1), t=(0, 1), n=(0, k)), k * n_sub)
+        return check_time(
+            float(nd) * self.n_distinct * nn * n_sub, per_s / overhead,
+            f"a response of {nd} detector(s) x {nt} time bins x {nn} pixels "
+            f"({self.model.name} model, {n_sub} sub-sample(s) per bin)", unit="profile values",
+            hint="use larger pixels or a smaller field, fewer bins or detectors, or the Radon "
+            "operator (the exact model through one table)")
 
     def fill(self, out: np.ndarray, *, max_block_bytes: int = 64 << 20) -> np.ndarray:
         """Fill ``out = P`` locally (numba threads inside each kernel call): the one local

@@ -51,6 +51,7 @@ from rotmod.response.parallel import block_ranges
 from rotmod.response.radon import (
     _FMA,
     BLOCK_BYTES,
+    DEFAULT_TOLERANCE,
     RadonResponse,
     _detect,
     _detect_adjoint,
@@ -308,7 +309,7 @@ class RadonDriftResponse(ResponseOperator):
     """
 
     def __init__(self, spec: ResponseSpec, attitudes: list[Any], weights: np.ndarray, *,
-                 tolerance: float = 1e-4, block_bins: int | None = None) -> None:
+                 tolerance: float = DEFAULT_TOLERANCE, block_bins: int | None = None) -> None:
         self._adopt(spec)
         wts = np.asarray(weights, dtype=np.float64)
         if wts.shape != (len(attitudes), self.n_time) or not np.all(np.isfinite(wts)):
@@ -520,7 +521,7 @@ def drift_response(
     start_phase: Any = 0.0,
     dtype: Any = None,
     operator: str = "matrix",
-    tolerance: float = 1e-4,
+    tolerance: float | None = None,
 ) -> ResponseOperator:
     """Exposure-weighted response over attitude ``intervals`` (see the module notes).
 
@@ -544,12 +545,20 @@ def drift_response(
         intervals; ``model`` must be ``"exact"``); or, for comparisons, the straightforward
         :class:`DriftResponse` of one :class:`~rotmod.response.RadonResponse` per interval
         (a table and a product per interval).
-    tolerance : float
-        With the Radon operators: the largest error of any profile value.
+    tolerance : float, optional
+        With the Radon operators only: the largest error of any profile value (default
+        1e-4).  Refused with ``operator="matrix"``, which holds the model's values without
+        interpolation (a tolerance there would be silently ignored).
 
     Returns
     -------
     MaterialisedResponse, RadonDriftResponse or DriftResponse
+
+    Raises
+    ------
+    ParameterError
+        An unknown operator, no intervals, a model the Radon operators cannot factorise, or a
+        ``tolerance`` with ``operator="matrix"``.
     """
     spec = as_spec(instrument, grid, time_bins, model, energy, dtype=dtype,
                    default_dtype=np.float64)
@@ -559,6 +568,12 @@ def drift_response(
                              f"{operator!r}")
     if not intervals:
         raise ParameterError("intervals must hold at least one attitude interval")
+    if operator == "matrix" and tolerance is not None:
+        raise ParameterError(
+            f"tolerance: only the Radon operators interpolate (operator 'radon' or "
+            f"'radon-per-interval'); operator 'matrix' holds the model's values exactly, "
+            f"so tolerance = {tolerance!r} would be ignored")
+    tolerance = DEFAULT_TOLERANCE if tolerance is None else tolerance
     weights = np.array([exposure_per_bin([[lo, hi]], tb.n_bins, inst.rotation_period,
                                          start_phase) for lo, hi, _ in intervals])
     total = weights.sum(axis=0)

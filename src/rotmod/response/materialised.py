@@ -77,7 +77,7 @@ def build_response(
 
     Raises
     ------
-    ParameterError, MaterialError, ModelValidityError, MemoryBudgetError
+    ParameterError, MaterialError, ModelValidityError, MemoryBudgetError, TimeBudgetError
 
     Notes
     -----

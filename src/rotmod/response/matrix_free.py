@@ -96,7 +96,14 @@ class MatrixFreeResponse(BlockwiseResponse):
         :meth:`ResponseOperator.materialise` (``block_size``, default ~32 MB of float64)
         run on the cluster (or locally, with a progress bar).  Either way every value is
         the same kernel's: :func:`~rotmod.response.build_response` is this method.
+
+        Raises
+        ------
+        rotmod.limits.TimeBudgetError
+            Every value would take longer than the time budget
+            (:meth:`ResponsePlan.check_time`, before any is computed).
         """
+        self.plan.check_time()
         if self.scheduler is None and self.client is None and not self.progress:
             out = np.empty((self.n_det, self.n_time, self.n_sky), dtype=self.dtype)
             return MaterialisedResponse(self.plan.fill(out), spec=self.spec)

@@ -31,6 +31,21 @@ if TYPE_CHECKING:
 __all__ = ["BlockwiseResponse", "MaterialisedResponse", "ResponseOperator"]
 
 
+def _finite(x: np.ndarray, name: str) -> np.ndarray:
+    """``x`` if every value is a finite number: a NaN or inf in a product's input would
+    spread to every output value (one NaN pixel makes every rate NaN) with no error."""
+    try:
+        ok = np.isfinite(x)
+    except TypeError:
+        raise ParameterError(f"{name} must hold numbers, got values of type {x.dtype}") from None
+    if not ok.all():
+        i = np.unravel_index(int(np.argmin(ok)), x.shape)
+        where = int(i[0]) if len(i) == 1 else tuple(int(k) for k in i)
+        raise ParameterError(f"{name} must be finite, got {x[i]} at index {where} "
+                             f"({int(x.size - ok.sum())} of {x.size} values not finite)")
+    return x
+
+
 class ResponseOperator(ABC):
     """Abstract response ``P``: sky vectors ``(n_sky,)`` to folded rates ``(n_det, n_time)``.
 
@@ -127,7 +142,7 @@ class ResponseOperator(ABC):
         x = np.asarray(sky)
         if x.shape != (self.n_sky,):
             raise ParameterError(f"sky must have shape ({self.n_sky},), got {x.shape}")
-        return x
+        return _finite(x, "sky")
 
     def _check_counts(self, counts: Any) -> np.ndarray:
         y = np.asarray(counts)
@@ -135,7 +150,7 @@ class ResponseOperator(ABC):
             raise ParameterError(
                 f"counts must have shape ({self.n_det}, {self.n_time}), got {y.shape}"
             )
-        return y
+        return _finite(y, "counts")
 
     def forward(self, sky: np.ndarray) -> np.ndarray:
         """``P S``: folded rates ``(n_det, n_time)`` of sky vector ``sky`` ``(n_sky,)``."""

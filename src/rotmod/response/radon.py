@@ -47,7 +47,7 @@ from numba.extending import overload
 from rotmod._validate import as_int, as_scalar
 from rotmod.errors import ModelValidityError, ParameterError, RotmodError
 from rotmod.io import response_store as fmt
-from rotmod.limits import check_memory
+from rotmod.limits import check_memory, check_time, measure_rate
 from rotmod.profiles.base import CAST_BYTES, ProjectedGeometry
 from rotmod.response._plan import distinct_bins, fold_half_turn, repeat_half_turn
 from rotmod.response.materialised import MaterialisedResponse
@@ -64,6 +64,8 @@ __all__ = ["RadonResponse"]
 #: Chosen so that the measured error stays below the tolerance with a margin: at most 0.86
 #: of it on the paper's whole grid and random geometries (docs/response.md).
 ERROR_LAW = 0.15
+#: The default ``tolerance`` of the Radon operators (largest error of a profile value).
+DEFAULT_TOLERANCE = 1e-4
 #: Share of the tolerance given to the ``q`` (optical depth) interpolation.
 RING_SHARE = 0.1
 #: Most ``q`` nodes (the Chebyshev bound needs more only for absurd fields).
@@ -462,7 +464,7 @@ class RadonResponse(ResponseOperator):
         time_bins: Any = None,
         energy: Any = None,
         *,
-        tolerance: float = 1e-4,
+        tolerance: float = DEFAULT_TOLERANCE,
         dtype: Any = None,
         detectors: Any = None,
         block_bins: int | None = None,
@@ -506,7 +508,7 @@ class RadonResponse(ResponseOperator):
     def _setup(self, block_bins: int | None, given: np.ndarray | None) -> _Factors:
         inst, tb, dt = self.instrument, self.time_bins, self.dtype
         mask, det = inst.mask, inst.detectors
-        a, b, h, big_l = mask.slat_width, mask.slat_gap, mask.thickness, mask.height
+        h, big_l = mask.thickness, mask.height
         radius, period = det.radius, mask.period
         mu = mask.linear_attenuation(self.energy)
         n_pix = self.n_sky
@@ -547,7 +549,9 @@ class RadonResponse(ResponseOperator):
                      f"a table of {n_x} x {n_w} x {n_q} profile values",
                      hint="raise tolerance, or use a smaller field")
         if given is None:
-            table = self._table(a, b, h, big_l, radius, mu, period, n_x, n_w, k0, dw, q_nodes)
+            sizes = (h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes)
+            self._check_table_time(*sizes)
+            table = self._table(*sizes)
         else:
             table = np.ascontiguousarray(given, dtype=dt)
             if table.shape != (n_x, n_w * n_q):
@@ -599,7 +603,7 @@ class RadonResponse(ResponseOperator):
             n_sub=tb.n_sub, gemm=gemm, q_nodes=q_nodes,
         )
 
-    def _table(self, a, b, h, big_l, radius, mu, period, n_x, n_w, k0, dw, q_nodes):
+    def _table(self, h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes):
         """``Psi[j, k, r] = E(x_j + L w_k, h w_k, mu h q_r)`` flattened to ``(J, K R)``.
 
         ``E(-u, -s) = E(u, s)`` (the mask is symmetric about the gap on the axis), and the
@@ -609,30 +613,49 @@ class RadonResponse(ResponseOperator):
         n_q = q_nodes.size
         x = period / n_x * np.arange(n_x)
         w = (np.arange(n_w) - k0) * dw
-        if math.isinf(mu):
-            tau = np.full(n_q, math.inf)
-        else:
-            tau = mu * h * q_nodes
+        tau = np.full(n_q, math.inf) if math.isinf(mu) else mu * h * q_nodes
         table = np.empty((n_x, n_w, n_q), dtype=self.dtype)
         half = n_x // 2 + 1
         # About CAST_BYTES of values per call: a short call, so Ctrl-C stops the build soon.
         rows_per_call = max(1, CAST_BYTES // 8 // n_w)
-        zeros_w = np.zeros(n_w)
-        one, zero = np.ones(1), np.zeros(1)
-        model = self.model
         for r in range(n_q):
-            taus = np.full(n_w, tau[r])
             for j0 in range(0, half, rows_per_call):
                 j1 = min(half, j0 + rows_per_call)
-                uc = x[j0:j1, None] + big_l * w[None, :]
-                geom = ProjectedGeometry(uc, np.zeros_like(uc), h * w, zeros_w, taus,
-                                         zeros_w, zeros_w, mu)
-                out = np.empty((j1 - j0, 1, n_w))
-                model.evaluate(self.instrument, geom, one, zero, out)
-                table[j0:j1, :, r] = out[:, 0, :]
+                table[j0:j1, :, r] = self._values(x[j0:j1], w, tau[r], h, big_l, mu)
         for j in range(half, n_x):
             table[j] = table[n_x - j, ::-1]
         return table.reshape(n_x, n_w * n_q)
+
+    def _values(self, x: np.ndarray, w: np.ndarray, tau: float, h: float, big_l: float,
+                mu: float) -> np.ndarray:
+        """``E(x_j + L w_k, h w_k, tau)`` for rows ``x`` and sky coordinates ``w``."""
+        uc = x[:, None] + big_l * w[None, :]
+        zeros_w = np.zeros(w.size)
+        geom = ProjectedGeometry(uc, np.zeros_like(uc), h * w, zeros_w, np.full(w.size, tau),
+                                 zeros_w, zeros_w, mu)
+        out = np.empty((x.size, 1, w.size))
+        self.model.evaluate(self.instrument, geom, np.ones(1), np.zeros(1), out)
+        return out[:, 0, :]
+
+    def _check_table_time(self, h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes) -> None:
+        """Refuse a table that would take longer than the time budget, before it is made.
+
+        A value's cost grows with the shift ``h |w|`` of the slat shadow (8e6/s on the axis,
+        1.5e6/s past a slat width, measured), so the rate is measured here: one row at up to
+        4000 of the table's ``w`` nodes, evenly spread (:func:`rotmod.limits.measure_rate`: a
+        few ms), at the first optical-depth node (the cost hardly depends on it).
+        """
+        w = (np.arange(n_w) - k0) * dw
+        sample = w[:: max(1, n_w // 4000)]
+        tau = math.inf if math.isinf(mu) else mu * h * float(q_nodes[0])
+        per_s = measure_rate(lambda: self._values(np.zeros(1), sample, tau, h, big_l, mu),
+                             sample.size)
+        t_max = float(np.max(np.abs(w)))
+        check_time(float(n_x // 2 + 1) * n_w * q_nodes.size, per_s,
+                   f"a Radon table of {n_x} x {n_w} x {q_nodes.size} profile values (tolerance "
+                   f"{self.tolerance:g}, pixels up to {np.degrees(np.arctan(t_max)):.4g} deg "
+                   "from the axis)", unit="profile values",
+                   hint="raise tolerance, or keep the field further from the horizon")
 
     # -- products --------------------------------------------------------------------------
 

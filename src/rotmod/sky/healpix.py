@@ -139,9 +139,9 @@ class HealpixGrid(SkyGeometry):
             v = as_angle_scalar(getattr(self, name), f"grid.{name}", lo=lo, hi=hi,
                                 hi_open=hi_open, lo_open=name == "radius")
             object.__setattr__(self, name, float(np.degrees(v)))
-        hp = self._healpix()
-        # Cone area / pixel area, then ~10 values per pixel.
-        n_est = (1 - np.cos(np.radians(self.radius))) / (1 - np.cos(hp.pixel_resolution))
+        # Cone area 4 pi sin^2(r/2) / pixel area 4 pi / (12 nside^2), then ~10 values per
+        # pixel (finite for any nside: 1 - cos(resolution) is 0 in floats from nside ~2^26).
+        n_est = 12.0 * float(nside) ** 2 * np.sin(np.radians(self.radius) / 2) ** 2
         check_memory(80.0 * n_est, f"HEALPix nside {nside} pixels within {self.radius:g} deg",
                      hint="use a smaller nside or radius")
         pix = np.asarray(cone_pixels(nside, self.order, self.ra, self.dec, self.radius),

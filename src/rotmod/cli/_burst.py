@@ -18,9 +18,12 @@ from rotmod.cli._common import (
     add_energy,
     add_output,
     add_progress,
+    check_covers,
     check_files,
     energy_of,
     progress_wanted,
+    quantity,
+    registered,
     save_figure,
     say,
     use_agg,
@@ -34,6 +37,7 @@ from rotmod.io.config import load_instrument_config
 from rotmod.io.regions import write_probability_map
 from rotmod.io.tables import write_product_table
 from rotmod.profiles import DEFAULT_MODEL, MODELS
+from rotmod.sky import AttitudeTable
 
 
 def register(sub: Any) -> None:
@@ -63,7 +67,7 @@ def register(sub: Any) -> None:
                    "accepted; default one per day)")
     p.add_argument("--radius", type=float, default=80.0, metavar="DEG",
                    help="searched cone around the pointing (deg, < 90; default 80)")
-    p.add_argument("--systematic", type=float, default=0.0, metavar="DEG",
+    p.add_argument("--systematic", type=quantity("deg"), default=0.0, metavar="DEG",
                    help="systematic position error per axis added to the regions (deg)")
     p.add_argument("--interval", default=None, metavar="T0,T1",
                    help="analyse this interval (s) instead of searching")
@@ -85,6 +89,18 @@ def _rate(text: str) -> float:
     if not (np.isfinite(value) and value > 0):
         raise UserError(f"--far: must be > 0 per second, got {text!r}")
     return value
+
+
+def _interval(text: str) -> tuple[float, float]:
+    """``--interval T0,T1``: two finite times (s) with ``T1 > T0``."""
+    try:
+        t0, t1 = (float(x) for x in text.split(","))
+    except ValueError:
+        raise UserError(f"--interval: must be T0,T1 (s), got {text!r}") from None
+    if not (np.isfinite(t0) and np.isfinite(t1) and t1 > t0):
+        raise UserError(f"--interval: must be two finite times T0,T1 (s) with T1 > T0, got "
+                        f"{text!r}")
+    return t0, t1
 
 
 def _plot(burst: Burst, path: Any) -> None:
@@ -148,6 +164,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--systematic: must be >= 0 deg, got {args.systematic:g}")
     if not (np.isfinite(args.max_step) and args.max_step > 0):
         raise UserError(f"--max-step: must be > 0 s, got {args.max_step:g} s")
+    model = registered(MODELS, args.model or DEFAULT_MODEL, "--model")
+    given = None if args.interval is None else _interval(args.interval)
     events = read(path)
     if not isinstance(events, EventList):
         raise UserError(f"EVENTS {str(path)!r}: must be an event list, got a file of "
@@ -168,12 +186,13 @@ def run(args: argparse.Namespace) -> int:
     if att is None:
         raise UserError("--pointing/--attitude: the event file records no pointing, and a "
                         "burst is placed on the sky through it")
-    if args.interval is not None:
-        try:
-            t0, t1 = (float(x) for x in args.interval.split(","))
-        except ValueError:
-            raise UserError(f"--interval: must be T0,T1 (s), got {args.interval!r}") from None
-        intervals: list[Any] = [(t0, t1)]
+    if isinstance(att, AttitudeTable):
+        check_covers(att, events.t_start, events.t_stop, "give the table of these events")
+    if given is not None:
+        if given[1] <= events.t_start or given[0] >= events.t_stop:
+            raise UserError(f"--interval: {given[0]:g},{given[1]:g} s lies outside the events "
+                            f"({events.t_start:g} .. {events.t_stop:g} s)")
+        intervals: list[Any] = [given]
     else:
         found = search(events, far=far)
         say(f"rotmod: burst: searched {found.searched:.0f} s at {far:.3g}/s false alarms "
@@ -189,7 +208,6 @@ def run(args: argparse.Namespace) -> int:
     paths = [{ext: files[f"-o {args.output} (burst {k}, {ext})"] for ext in exts}
              for k in range(1, len(intervals) + 1)]
     cache: dict = {}
-    model = args.model or DEFAULT_MODEL
     for k, (interval, out) in enumerate(zip(intervals, paths, strict=True), 1):
         name = f"burst {k}"
         try:

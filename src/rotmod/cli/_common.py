@@ -134,15 +134,20 @@ def intervals_of(table: AttitudeTable, t_start: float, t_stop: float,
     """The pieces of constant attitude of ``table`` over ``[t_start, t_stop]`` (s)."""
     if not np.isfinite(max_step) or max_step <= 0:
         raise UserError(f"--max-step: must be > 0 s, got {max_step:g} s")
+    check_covers(table, t_start, t_stop, "give an --exposure within the table")
+    return table.intervals(t_start, t_stop, max_step)
+
+
+def check_covers(table: AttitudeTable, t_start: float, t_stop: float, hint: str) -> None:
+    """Refuse an ``--attitude`` table that does not cover ``[t_start, t_stop]`` (s): outside
+    its samples a table holds its end attitude, a drift silently frozen."""
     t0, t1 = float(table.time[0]), float(table.time[-1])
     if t_start < t0 or t_stop > t1:
-        # Outside its samples a table holds its end attitude: a drift silently frozen.
         raise UserError(
             f"--attitude: the table covers {t0:g} .. {t1:g} s, but the observation runs "
-            f"{t_start:g} .. {t_stop:g} s; give an --exposure within the table (times are "
-            "seconds from the start of the observation)"
+            f"{t_start:g} .. {t_stop:g} s; {hint} (times are seconds from the start of the "
+            "observation)"
         )
-    return table.intervals(t_start, t_stop, max_step)
 
 
 def to_number(text: str, unit: str) -> float:

@@ -28,7 +28,7 @@ from rotmod.cli._sources import (
     read_data,
     stored_frame,
 )
-from rotmod.io.catalogue import write_detection
+from rotmod.io.catalogue import read_catalogue, write_detection
 from rotmod.io.regions import write_ds9, write_probability_map
 from rotmod.io.tables import product_format
 from rotmod.io.tsmaps import write_ts_map
@@ -151,11 +151,13 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--prob-maps: folder {str(Path(args.prob_maps).parent)!r} does not "
                         "exist")
 
+    # The known sources are read before any work: a bad catalogue costs nothing.
+    known = read_catalogue(args.catalogue_in) if args.catalogue_in is not None else None
     data = read_data(args)
     response = make_response(args, data, lambda att: make_grid(args, att), "rotmod detect")
     folded = folded_of(data, response.time_bins, args)
-    model = (read_sky_model(args.catalogue_in, free_positions=args.refit_positions,
-                            response=response) if args.catalogue_in is not None else None)
+    model = (read_sky_model(known, free_positions=args.refit_positions, response=response)
+             if known is not None else None)
     n_known = 0 if model is None else len(model.sources)
     say(f"rotmod: detect: {response.n_det} detector(s) x {response.n_time} bins, "
         f"{response.n_sky} pixels ({response.grid.kind} grid), threshold TS "

@@ -24,6 +24,7 @@ from rotmod.cli._common import (
 from rotmod.cli._sources import add_data_options, input_files, make_response, read_data
 from rotmod.io.catalogue import read_catalogue
 from rotmod.io.tables import product_format, write_light_curve
+from rotmod.limits import check_memory
 from rotmod.sky import DirectionList, PositionList, SkyGeometry
 from rotmod.sources.catalogue import read_sky_model
 from rotmod.sources.lightcurve import LightCurve, light_curve
@@ -61,7 +62,8 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _edges(args: argparse.Namespace, gti: np.ndarray) -> np.ndarray:
+def _given_edges(args: argparse.Namespace) -> np.ndarray | None:
+    """The ``--edges`` (checked before any file is read), or None with ``--intervals``."""
     if args.edges is not None:
         try:
             edges = np.array([to_number(x, "s") for x in args.edges.split(",")])
@@ -72,7 +74,7 @@ def _edges(args: argparse.Namespace, gti: np.ndarray) -> np.ndarray:
             raise UserError(f"--edges: must be at least two increasing times (s), got "
                             f"{args.edges!r}")
         return edges
-    return np.linspace(float(gti[0, 0]), float(gti[-1, 1]), args.intervals + 1)
+    return None
 
 
 def _plot(lc: LightCurve, path: Any) -> None:
@@ -105,11 +107,23 @@ def run(args: argparse.Namespace) -> int:
     product_format(out, "--output")
     if not 0.5 < args.ul_confidence < 1:
         raise UserError(f"--ul-confidence: must be in (0.5, 1), got {args.ul_confidence:g}")
+    given = _given_edges(args)
     events = read_data(args, events_only=True)
-    edges = _edges(args, np.asarray(events.gti, dtype=float))
     catalogue = read_catalogue(cat_path)
     if not len(catalogue):
         raise UserError(f"CATALOGUE {str(cat_path)!r} has no sources")
+    gti = np.asarray(events.gti, dtype=float)
+    n = args.intervals if given is None else given.size - 1
+    # Per interval: its edges and pair (~130 B) and per source 5 results of 8 B.
+    check_memory(n * (130.0 + 40.0 * len(catalogue)),
+                 f"a light curve of {n} intervals x {len(catalogue)} source(s)",
+                 hint="ask for fewer --intervals")
+    edges = (np.linspace(float(gti[0, 0]), float(gti[-1, 1]), n + 1) if given is None
+             else given)
+    # The intervals tile [edges[0], edges[-1]]: one holds good time if that span does.
+    if not np.any((gti[:, 0] < edges[-1]) & (gti[:, 1] > edges[0])):
+        raise UserError(f"--edges: no interval overlaps the events' good time "
+                        f"({gti[0, 0]:g} .. {gti[-1, 1]:g} s)")
 
     def grid_of(att: Any) -> SkyGeometry:
         # The response of the catalogue's positions only: one column per source.

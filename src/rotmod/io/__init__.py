@@ -25,6 +25,7 @@ and writes atomically (:mod:`rotmod.io.atomic`).
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -73,8 +74,11 @@ def _fits_identify(hdu: str) -> Callable[[Path], bool]:
 
     def identify(path: Path) -> bool:
         try:
-            with fits.open(path) as hdul:
-                return hdu in hdul
+            # A probe only: what astropy warns of (a cut file) the reader then refuses.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                with fits.open(path) as hdul:
+                    return hdu in hdul
         except (OSError, ValueError):
             return False
 

@@ -38,7 +38,8 @@ def open_verified(path: str | os.PathLike) -> fits.HDUList:
     Raises
     ------
     RotmodError
-        Missing file, not FITS, or a CHECKSUM/DATASUM that does not match the content.
+        Missing file, not FITS, a file cut short, or a CHECKSUM/DATASUM that does not match
+        the content.
     """
     p = Path(path)
     if not p.is_file():
@@ -51,6 +52,12 @@ def open_verified(path: str | os.PathLike) -> fits.HDUList:
         hdul.verify("exception")
     except (OSError, fits.VerifyError, ValueError, TypeError) as exc:
         raise RotmodError(f"file {str(p)!r} is not a readable FITS file: {exc}") from exc
+    cut = [str(w.message).strip() for w in caught
+           if any(k in str(w.message) for k in ("file is corrupted", "may have been truncated"))]
+    if cut:  # astropy read what was there of a cut file, and warned
+        hdul.close()
+        raise RotmodError(f"file {str(p)!r} is truncated or corrupt: "
+                          f"{' '.join(cut[0].split())}")
     bad = [str(w.message).strip() for w in caught if "verification failed" in str(w.message)]
     if bad:
         hdul.close()

@@ -33,6 +33,7 @@ __all__ = [
     "NAME_MAX",
     "atomic_dir",
     "atomic_path",
+    "check_file_target",
     "check_overwrite",
     "current_umask",
     "remove_stale_dirs",
@@ -103,6 +104,24 @@ def check_overwrite(path: str | os.PathLike, overwrite: bool, *, parameter: str 
     return p
 
 
+def check_file_target(path: str | os.PathLike, *, parameter: str = "path") -> Path:
+    """Refuse a file ``path`` that cannot be written: a folder, or in a folder that does not
+    exist (said before any work, rather than as the operating system's error at the end).
+
+    Raises
+    ------
+    ParameterError
+        Naming ``parameter`` and the path.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise ParameterError(f"{parameter} {str(p)!r} is a folder; give a file name")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise ParameterError(f"{parameter} {str(p)!r}: folder {str(parent)!r} does not exist")
+    return p
+
+
 def current_umask() -> int:
     """The process umask (read without changing it for other threads for long)."""
     mask = os.umask(0o022)
@@ -121,7 +140,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     The caller writes the whole file to the yielded path (any library that takes a file
     name).  On an exception the temporary file is removed and ``path`` is left untouched.
     """
-    p = Path(path)
+    p = check_file_target(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{_temp_stem(p)}.", suffix=".tmp", dir=p.parent or ".")
     os.close(fd)
     try:

@@ -264,10 +264,13 @@ def _read_table(p: Path) -> Table:
             raise ParameterError(f"path {str(p)!r} is not a readable ECSV table: {exc}") \
                 from exc
     with open_verified(p) as hl:
-        tables = [h for h in hl[1:] if isinstance(h, fits.BinTableHDU)]
+        tables = [h for h in hl[1:] if isinstance(h, fits.BinTableHDU | fits.TableHDU)]
         hdu = hl[EXTNAME] if EXTNAME in hl else (tables[0] if tables else None)
         if hdu is None:
             raise ParameterError(f"path {str(p)!r} has no table")
+        if not isinstance(hdu, fits.BinTableHDU | fits.TableHDU):
+            raise ParameterError(f"path {str(p)!r}: the {EXTNAME} extension must be a table, "
+                                 f"got {type(hdu).__name__}")
         with warnings.catch_warnings():
             # Units outside the FITS standard (a foreign catalogue) are read as they are.
             warnings.simplefilter("ignore", u.UnitsWarning)
@@ -281,6 +284,9 @@ def _values(table: Table, name: str, unit: u.UnitBase, path: Path) -> np.ndarray
         values = np.asarray(data, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ParameterError(f"path {str(path)!r}: column {name} must hold numbers") from exc
+    if values.ndim != 1:
+        raise ParameterError(f"path {str(path)!r}: column {name} must hold one number per row, "
+                             f"got {values.shape[1:]} per row")
     if col.unit is None:
         return values
     try:
@@ -308,14 +314,23 @@ def read_catalogue(path: str | os.PathLike) -> SourceCatalogue:
     Raises
     ------
     ParameterError
-        A missing or unreadable file, no position columns, a position that is not finite, or
-        a column in units of the wrong kind.
+        A missing or unreadable file, no position columns (or two that differ only in case),
+        a position that is not finite, a declination outside [-90, 90] or a right ascension
+        outside [0, 360] deg, a column in units of the wrong kind or with more than one value
+        per row, an infinite flux, or two sources of one name.
     """
     p = Path(path)
+    if p.is_dir():
+        raise ParameterError(f"path {str(p)!r} is a folder; give a catalogue file (FITS or ECSV)")
     if not p.is_file():
         raise ParameterError(f"path {str(p)!r} does not exist")
     table = _read_table(p)
-    lower = {c.lower(): c for c in table.colnames}
+    lower: dict[str, str] = {}
+    for c in table.colnames:
+        if c.lower() in lower:  # which one holds the positions would be a guess
+            raise ParameterError(f"path {str(p)!r}: columns {lower[c.lower()]} and {c} differ "
+                                 "only in case; keep one")
+        lower[c.lower()] = c
     found = next(((lon, lat, frame) for lon, lat, frame in POSITION_COLUMNS
                   if lon in lower and lat in lower), None)
     if found is None:
@@ -331,6 +346,12 @@ def read_catalogue(path: str | os.PathLike) -> SourceCatalogue:
         col = table[name_col]
         col = col.filled("") if isinstance(col, MaskedColumn) else col
         names = tuple(str(x).strip() for x in col)
+    seen: dict[str, int] = {}
+    for k, name in enumerate(names):
+        if name and name in seen:  # a light curve or a map per source could not tell them apart
+            raise ParameterError(f"path {str(p)!r}: the names must differ, got {name!r} in rows "
+                                 f"{seen[name]} and {k}")
+        seen.setdefault(name, k)
     if np.any(bad):
         k = int(np.argmax(bad))
         raise ParameterError(
@@ -346,8 +367,18 @@ def read_catalogue(path: str | os.PathLike) -> SourceCatalogue:
             k = int(np.argmax(np.abs(lat) > 90.0))
             raise ParameterError(f"path {str(p)!r}: {lower[found[1]]} of row {k} must be in "
                                  f"[-90, 90] deg, got {lat[k]}")
+        # A right ascension outside [0, 360] deg would wrap silently onto another source
+        # (400 onto 40); such a value is a mistake (a unit, a column), not a position.
+        if np.any((lon < 0.0) | (lon > 360.0)):
+            k = int(np.argmax((lon < 0.0) | (lon > 360.0)))
+            raise ParameterError(f"path {str(p)!r}: {lower[found[0]]} of row {k} must be in "
+                                 f"[0, 360] deg, got {lon[k]}")
         c = SkyCoord(lon * u.deg, lat * u.deg, frame=found[2]).icrs
         positions = SkyCoord(c.ra, c.dec, frame="icrs")
     flux = (_values(table, lower["flux"], FLUX_UNIT, p) if "flux" in lower
             else np.full(len(table), np.nan))
+    if np.any(np.isinf(flux)):  # NaN (or empty) means no flux given; inf is no flux at all
+        k = int(np.argmax(np.isinf(flux)))
+        raise ParameterError(f"path {str(p)!r}: {lower['flux']} of row {k} must be finite (or "
+                             f"empty: none given), got {flux[k]}")
     return SourceCatalogue(names, frame, positions, flux, table)

@@ -35,7 +35,7 @@ from astropy.io import fits
 
 from rotmod.errors import ParameterError
 from rotmod.io._fits import open_verified
-from rotmod.io.atomic import atomic_path, check_overwrite
+from rotmod.io.atomic import atomic_path, check_file_target, check_overwrite
 from rotmod.io.images import add_meta_cards, stamp_header
 from rotmod.spectral.spectrum import CountsSpectrum, RateSpectrum, SpectralResponse
 
@@ -138,6 +138,13 @@ def write_ogip(
     -------
     pathlib.Path
         The PHA file.
+
+    Raises
+    ------
+    ParameterError
+        Before anything is written: no response, another extension, an existing file without
+        ``overwrite``, a folder in the way or a missing folder, counts above ``2^31 - 1`` (the
+        32-bit ``COUNTS`` column).
     """
     if not isinstance(spectrum, CountsSpectrum | RateSpectrum):
         raise ParameterError("spectrum must be a CountsSpectrum or a RateSpectrum, got "
@@ -148,8 +155,17 @@ def write_ogip(
     if not isinstance(spectrum, CountsSpectrum) or spectrum.background is None:
         paths.pop("bkg")
     for key, p in paths.items():
-        check_overwrite(p, overwrite, parameter=f"the {key.upper()} file" if key != "pha"
-                        else "path")
+        what = f"the {key.upper()} file" if key != "pha" else "path"
+        check_overwrite(p, overwrite, parameter=what)
+        check_file_target(p, parameter=what)  # all four or none: no rename may fail late
+    counted = [spectrum] if isinstance(spectrum, CountsSpectrum) else []
+    if counted and spectrum.background is not None:
+        counted.append(spectrum.background)
+    for s in counted:
+        if s.counts.size and s.counts.max() > np.iinfo(np.int32).max:
+            raise ParameterError(
+                f"spectrum: counts must be at most {np.iinfo(np.int32).max} per channel to be "
+                f"written as OGIP COUNTS (32-bit integers), got {s.counts.max()}")
     resp = spectrum.response
     files = {"RESPFILE": paths["rmf"].name, "ANCRFILE": paths["arf"].name}
     if "bkg" in paths:
@@ -210,6 +226,30 @@ def write_ogip(
     return paths["pha"]
 
 
+def _number(header: fits.Header, key: str, path: Path, default: Any = None) -> float:
+    """The numeric card ``key`` (``default`` when absent), or a ParameterError naming the file."""
+    value = header.get(key, default)
+    if value is None:
+        raise ParameterError(f"file {str(path)!r}: the header has no {key}")
+    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+        raise ParameterError(f"file {str(path)!r}: {key} must be a number, got {value!r}")
+    return float(value)
+
+
+def _column(data: Any, name: str, path: Path, ext: str, *, kind: str = "number") -> np.ndarray:
+    """Column ``name`` of extension ``ext``: one number per row (``kind="integer"``: whole
+    numbers), or a ParameterError naming the file, extension and column."""
+    if name not in data.columns.names:
+        raise ParameterError(f"file {str(path)!r}: the {ext} extension has no {name} column")
+    values = np.asarray(data[name])
+    if values.dtype.kind not in "iuf" or values.ndim != 1:
+        raise ParameterError(f"file {str(path)!r}: {ext} column {name} must hold one number "
+                             f"per row, got {values.dtype} of shape {values.shape}")
+    if kind == "integer" and not np.all(np.isfinite(values) & (values == np.round(values))):
+        raise ParameterError(f"file {str(path)!r}: {ext} column {name} must hold integers")
+    return values
+
+
 def poisson_errors(header: fits.Header, columns: Any) -> bool:
     """Whether a SPECTRUM extension's errors are Poisson: its ``POISSERR`` card, or without
     one, the absence of ``STAT_ERR`` (as a column among ``columns`` or a card)."""
@@ -234,7 +274,12 @@ def _spectrum_from(hdul: fits.HDUList, path: Path
                              "RATE column (a type II spectrum?)")
     if "EXPOSURE" not in h:
         raise ParameterError(f"file {str(path)!r}: the SPECTRUM header has no EXPOSURE")
-    exposure = float(h["EXPOSURE"])
+    exposure = _number(h, "EXPOSURE", path)
+    if len(d) == 0:
+        raise ParameterError(f"file {str(path)!r}: the SPECTRUM has no channels (no rows)")
+    if not isinstance(h.get("POISSERR", False), bool):
+        raise ParameterError(f"file {str(path)!r}: POISSERR must be T or F, got "
+                             f"{h['POISSERR']!r}")
     poisson = poisson_errors(h, names)
     if poisson and value == "RATE":
         raise ParameterError(f"file {str(path)!r}: a RATE spectrum with Poisson errors "
@@ -242,20 +287,21 @@ def _spectrum_from(hdul: fits.HDUList, path: Path
     errors = None
     if not poisson:
         if "STAT_ERR" in names:
-            errors = np.asarray(d["STAT_ERR"], dtype=float)
+            errors = _column(d, "STAT_ERR", path, "SPECTRUM").astype(float)
         elif "STAT_ERR" in h:
-            errors = np.full(len(d), float(h["STAT_ERR"]))
+            errors = np.full(len(d), _number(h, "STAT_ERR", path))
         if errors is None or not np.all(np.isfinite(errors) & (errors > 0)):
             raise ParameterError(f"file {str(path)!r}: POISSERR = F needs errors > 0 in "
                                  "STAT_ERR for every channel")
-    sys_err = np.asarray(d["SYS_ERR"], dtype=float) if "SYS_ERR" in names else np.array(
-        [h.get("SYS_ERR", 0.0)], dtype=float)
+    sys_err = (_column(d, "SYS_ERR", path, "SPECTRUM") if "SYS_ERR" in names
+               else np.array([_number(h, "SYS_ERR", path, 0.0)]))
     if np.any(sys_err != 0):
         raise ParameterError(f"file {str(path)!r}: systematic errors (SYS_ERR != 0), which "
                              "rotmod's fits do not add")
     scal = {}
     for key in ("BACKSCAL", "AREASCAL"):
-        v = np.asarray(d[key], dtype=float) if key in names else np.array([h.get(key, 1.0)])
+        v = (_column(d, key, path, "SPECTRUM").astype(float) if key in names
+             else np.array([_number(h, key, path, 1.0)]))
         if not np.all(v == v[0]):
             raise ParameterError(f"file {str(path)!r}: {key} differs between channels, which "
                                  "rotmod does not model")
@@ -271,7 +317,9 @@ def _spectrum_from(hdul: fits.HDUList, path: Path
         if key == "GROUPING" and np.any((v != 0) & (v != 1)):
             raise ParameterError(f"file {str(path)!r}: grouped channels (GROUPING); rotmod "
                                  "fits channels one by one")
-    values = np.asarray(d[value])
+    # Counts are whole numbers (an integer column, or a float one holding integers).
+    values = _column(d, value, path, "SPECTRUM",
+                     kind="integer" if value == "COUNTS" and errors is None else "number")
     if errors is not None and value == "COUNTS":
         values, errors = values / exposure, errors / exposure
     return values, errors, exposure, scal["BACKSCAL"], h
@@ -310,35 +358,63 @@ def read_ogip(path: str | os.PathLike) -> CountsSpectrum | RateSpectrum:
                                      "MATRIX) and EBOUNDS extensions (not an OGIP RMF)")
             m = rmf[ext].data
             eb = rmf["EBOUNDS"].data
+            if len(m) == 0 or len(eb) == 0:
+                raise ParameterError(f"file {str(rmf_path)!r}: the {ext} and EBOUNDS "
+                                     "extensions must have rows")
+            for col in ("ENERG_LO", "ENERG_HI", "N_GRP", "F_CHAN", "N_CHAN", "MATRIX"):
+                if col not in m.columns.names:
+                    raise ParameterError(f"file {str(rmf_path)!r}: the {ext} extension has no "
+                                         f"{col} column")
+            # The channels are EBOUNDS' rows; DETCHANS, when given, must say the same.
+            n_c = len(eb)
+            detchans = _number(rmf[ext].header, "DETCHANS", rmf_path, n_c)
+            if detchans != n_c:
+                raise ParameterError(f"file {str(rmf_path)!r}: DETCHANS = {detchans:g} but "
+                                     f"EBOUNDS has {n_c} channels")
             # The first channel number: TLMIN of the F_CHAN column (OGIP's default 1).
             col = m.columns.names.index("F_CHAN") + 1
-            first = int(rmf[ext].header.get(f"TLMIN{col}", 1))
-            n_c = int(rmf[ext].header["DETCHANS"])
+            first = int(_number(rmf[ext].header, f"TLMIN{col}", rmf_path, 1))
             matrix = np.zeros((len(m), n_c))
+            n_grp = _column(m, "N_GRP", rmf_path, ext, kind="integer")
             for i, row in enumerate(m):
                 start = 0
                 f = np.atleast_1d(row["F_CHAN"])
                 nch = np.atleast_1d(row["N_CHAN"])
-                for k in range(int(row["N_GRP"])):
+                values = np.atleast_1d(row["MATRIX"])
+                if not 0 <= n_grp[i] <= min(f.size, nch.size):
+                    raise ParameterError(f"file {str(rmf_path)!r}: row {i} has N_GRP = "
+                                         f"{n_grp[i]:g} but {min(f.size, nch.size)} groups in "
+                                         "F_CHAN and N_CHAN")
+                for k in range(int(n_grp[i])):
                     a, n = int(f[k]) - first, int(nch[k])
-                    if a < 0 or a + n > n_c:
+                    if a < 0 or n < 0 or a + n > n_c or start + n > values.size:
                         raise ParameterError(
                             f"file {str(rmf_path)!r}: row {i} puts channels {a + first}.."
-                            f"{a + first + n - 1} outside the {n_c} channels from {first}")
-                    matrix[i, a:a + n] = row["MATRIX"][start:start + n]
+                            f"{a + first + n - 1} outside the {n_c} channels from {first} "
+                            f"(or beyond its {values.size} MATRIX values)")
+                    matrix[i, a:a + n] = values[start:start + n]
                     start += n
-            energy_edges = np.append(m["ENERG_LO"], m["ENERG_HI"][-1]).astype(float)
-            channel_edges = np.append(eb["E_MIN"], eb["E_MAX"][-1]).astype(float)
+            energy_edges = np.append(_column(m, "ENERG_LO", rmf_path, ext),
+                                     m["ENERG_HI"][-1]).astype(float)
+            channel_edges = np.append(_column(eb, "E_MIN", rmf_path, "EBOUNDS"),
+                                      _column(eb, "E_MAX", rmf_path, "EBOUNDS")[-1]
+                                      ).astype(float)
         arf_path = p.parent / names["ANCRFILE"]
         with open_verified(arf_path) as arf:
+            if "SPECRESP" not in arf or arf["SPECRESP"].data is None or len(
+                    arf["SPECRESP"].data) == 0:
+                raise ParameterError(f"file {str(arf_path)!r} has no SPECRESP extension with "
+                                     "rows (not an OGIP ARF)")
             a_data = arf["SPECRESP"].data
-            area = np.asarray(a_data["SPECRESP"], dtype=float)
-            a_edges = np.append(a_data["ENERG_LO"], a_data["ENERG_HI"][-1]).astype(float)
+            area = _column(a_data, "SPECRESP", arf_path, "SPECRESP").astype(float)
+            a_edges = np.append(_column(a_data, "ENERG_LO", arf_path, "SPECRESP"),
+                                _column(a_data, "ENERG_HI", arf_path, "SPECRESP")[-1]
+                                ).astype(float)
         if a_edges.shape != energy_edges.shape or not np.allclose(a_edges, energy_edges,
                                                                    rtol=1e-6):
             raise ParameterError(f"files {names['ANCRFILE']!r} and {names['RESPFILE']!r} "
                                  "have different true-energy grids")
-        resp = SpectralResponse(energy_edges, channel_edges, matrix, area)
+        resp = _named(p, SpectralResponse, energy_edges, channel_edges, matrix, area)
     background = None
     if names["BACKFILE"].lower() != "none":
         if errors is not None:
@@ -350,7 +426,15 @@ def read_ogip(path: str | os.PathLike) -> CountsSpectrum | RateSpectrum:
             b_counts, b_errors, b_exp, b_scal, _ = _spectrum_from(bkg, bp)
         if b_errors is not None:
             raise ParameterError(f"file {str(bp)!r}: a background must be Poisson counts")
-        background = CountsSpectrum(b_counts, b_exp, backscal=b_scal)
+        background = _named(bp, CountsSpectrum, b_counts, b_exp, backscal=b_scal)
     if errors is not None:
-        return RateSpectrum(counts, errors, exposure, resp, meta)
-    return CountsSpectrum(counts, exposure, resp, background, backscal, meta)
+        return _named(p, RateSpectrum, counts, errors, exposure, resp, meta)
+    return _named(p, CountsSpectrum, counts, exposure, resp, background, backscal, meta)
+
+
+def _named(path: Path, cls: Any, *args: Any, **kwargs: Any) -> Any:
+    """``cls(*args, **kwargs)``, its ParameterError said with the file it was read from."""
+    try:
+        return cls(*args, **kwargs)
+    except ParameterError as exc:
+        raise ParameterError(f"file {str(path)!r}: {exc}") from exc

@@ -87,7 +87,20 @@ class SpectralModel(ABC):
         e = as_energy(energy, "energy")
         if np.any(e <= 0):
             raise ParameterError("energy must be > 0 keV")
-        return self._evaluate(e)
+        return self._finite(self._evaluate, "dN/dE", e)
+
+    def _finite(self, f: Any, what: str, *args: Any) -> np.ndarray:
+        """``f(*args)``, refused when a value is not finite: parameters whose spectrum
+        overflows float64 at these energies (an index of -1000, K of 1e308) are outside what
+        the model can represent, not a spectrum of infinite flux.  A fit sees the
+        :class:`~rotmod.errors.ParameterError` as the edge of the model's domain."""
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            out = f(*args)
+        if not np.all(np.isfinite(out)):
+            raise ParameterError(
+                f"{self!r}: {what} is not finite (overflows float64) at these energies; "
+                "the parameters are outside what the model can represent")
+        return out
 
     @abstractmethod
     def _evaluate(self, e: np.ndarray) -> np.ndarray:
@@ -105,6 +118,10 @@ class SpectralModel(ABC):
         each bin, the bins first split at :meth:`_breaks`.
         """
         lo, hi = _bins(e_lo, e_hi)
+        return self._finite(self._integral, "the bin integral", lo, hi)
+
+    def _integral(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Photons in each bin (validated ``0 < lo < hi``); the default by quadrature."""
         return _quadrature(self._evaluate, self._breaks(), lo, hi)
 
     def node_weights(self, nodes: Any) -> np.ndarray:
@@ -125,9 +142,12 @@ class SpectralModel(ABC):
         x = np.asarray(as_energy(nodes, "nodes"), dtype=float)
         if x.ndim != 1 or x.size < 2 or np.any(~(x > 0)) or np.any(np.diff(x) <= 0):
             raise ParameterError("nodes must be two or more increasing energies > 0 keV")
+        return self._finite(self._node_weights, "the node weights", x)
+
+    def _node_weights(self, x: np.ndarray) -> np.ndarray:
         lo, hi = x[:-1], x[1:]
         inv = 1.0 / np.log(hi / lo)
-        total = self.integral(lo, hi)
+        total = self._integral(lo, hi)
         # The share of each interval's photons that goes to its upper node:
         # ∫ N(E) ln(E / lo) / ln(hi / lo) dE.
         upper = np.zeros(lo.size)
@@ -152,7 +172,8 @@ class SpectralModel(ABC):
     def energy_flux(self, e_lo: Any, e_hi: Any) -> np.ndarray:
         """Energy flux ``∫ E dN/dE dE`` in each bin, keV cm^-2 s^-1 (by quadrature)."""
         lo, hi = _bins(e_lo, e_hi)
-        return _quadrature(lambda e: e * self._evaluate(e), self._breaks(), lo, hi)
+        return self._finite(_quadrature, "the energy flux", lambda e: e * self._evaluate(e),
+                            self._breaks(), lo, hi)
 
 
 def _quadrature(f: Any, cuts: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -214,8 +235,7 @@ class PowerLaw(SpectralModel):
     def _evaluate(self, e: np.ndarray) -> np.ndarray:
         return self.K * (e / self.piv) ** self.index
 
-    def integral(self, e_lo: Any, e_hi: Any) -> np.ndarray:
-        lo, hi = _bins(e_lo, e_hi)
+    def _integral(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         g = self.index + 1.0
         # ln(hi/lo) as log1p of the exact difference, and the bracket [(hi/piv)^g -
         # (lo/piv)^g] as expm1: a narrow bin keeps its digits.
@@ -331,8 +351,7 @@ class Gaussian(SpectralModel):
         z = (e - self.mu) / self.sigma
         return self.F / (self.sigma * math.sqrt(2.0 * math.pi)) * np.exp(-0.5 * z * z)
 
-    def integral(self, e_lo: Any, e_hi: Any) -> np.ndarray:
-        lo, hi = _bins(e_lo, e_hi)
+    def _integral(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         s = self.sigma * math.sqrt(2.0)
         za, zb = (lo - self.mu) / s, (hi - self.mu) / s
         # In a tail the difference of erfc keeps the digits that one of erf (near +-1) loses.

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize
 
-from rotmod._validate import as_scalar
+from rotmod._validate import as_integers, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.spectral.models import SpectralModel
 
@@ -142,9 +142,17 @@ class CountsSpectrum:
         c = np.asarray(self.counts)
         if c.ndim != 1 or c.size == 0:
             raise ParameterError("counts must be a 1-D array, one value per channel")
-        if not np.all(np.isfinite(c)) or np.any(c < 0) or np.any(c != np.round(c)):
-            raise ParameterError("counts must be non-negative integers (Poisson counts)")
-        c = c.astype(np.int64)
+        try:
+            c = np.array(as_integers(c, "counts", lo=0), dtype=np.int64)
+        except ParameterError as err:
+            raise ParameterError(f"counts must be non-negative integers (Poisson counts): "
+                                 f"{err}") from None
+        if self.response is not None and not isinstance(self.response, SpectralResponse):
+            raise ParameterError(f"response must be a SpectralResponse, got "
+                                 f"{type(self.response).__name__}")
+        if self.background is not None and not isinstance(self.background, CountsSpectrum):
+            raise ParameterError(f"background must be a CountsSpectrum, got "
+                                 f"{type(self.background).__name__}")
         c.setflags(write=False)
         object.__setattr__(self, "counts", c)
         object.__setattr__(self, "exposure", as_scalar(self.exposure, "exposure", lo=0.0,
@@ -368,6 +376,11 @@ def fit_spectrum(
         raise ParameterError("channels selects no channel: nothing to fit")
     if not np.any(spectrum.response.area > 0):
         raise ParameterError("spectrum.response.area is 0 everywhere: nothing can be detected")
+    if isinstance(spectrum, CountsSpectrum) and not np.any(spectrum.counts[chans]):
+        # The likelihood then peaks at K = 0, on the edge of the model's domain, with no
+        # curvature to give an error: what such data give is an upper limit.
+        raise ParameterError("spectrum has no count in the fitted channels: nothing to fit "
+                             "(zero counts give an upper limit, not a fitted spectrum)")
     stat, stat_name = _objective(spectrum, chans)
     if isinstance(free, str):  # one name, not its letters
         free = (free,)

@@ -2,11 +2,12 @@
 the time-variable background fitted (issue 23).
 
 The flight: 4 h at Fort Sumner (NRLMSIS), floating at 38 km with a sunset-like dip to 32 km
-in the middle (``h(t) = 38 - 3 (1 - cos(2 pi t / 4 h))`` km: the column above the balloon
-grows from 3.6 to 9.8 g/cm^2 and back).  A source of ``E^-2`` (K at 100 keV) rises from
-hour angle -1 h to +3 h at declination 20 deg: its zenith angle goes 14.5 -> 42 deg, so its
-transmission through the air changes with both the altitude and the zenith angle.  The
-gondola tracks it: the source stays at one position in the instrument (5.3 deg off axis).
+in the middle (``h(t) = 38 - 3 (1 - cos(2 pi t / 4 h))`` km: over the 16 slices the column
+above the balloon goes 4.0 -> 9.3 g/cm^2 and back).  A source of ``E^-2`` (K at 100 keV)
+rises from hour angle -1 h to +3 h at declination 20 deg: its zenith angle goes 14.5 -> 42
+deg, so its transmission through the air changes with both the altitude and the zenith angle.
+The gondola tracks it: the source stays at one position in the instrument, (4.5, 2.5) deg in
+the grid's tangent plane (5.15 deg off axis).
 
 The counts: in each slice (default 16 slices of 15 min, each folded into mask-angle bins of
 the 60 s rotation) and each energy channel, Poisson draws from the exact expected counts: the
@@ -16,28 +17,43 @@ continuum, 511 keV line, at the slice's mean altitude profile; the mask's mean o
 detector-internal continuum, with injected scales (``TRUE_SCALES``: the published model's
 level is uncertain).  Each realisation is
 
-* **imaged**: the flight's folded counts in 150-500 keV reconstructed with the default
-  method (background fitted per detector) on a 16 x 16 deg grid; the brightest pixel must be
-  the source's;
-* **fitted** three ways with :func:`rotmod.sources.spectra.fit_spectra`, forward-folded,
-  Poisson, every slice's transmission modelled:
+* **imaged**: the flight's folded counts in 150-500 keV reconstructed by MLEM with the
+  background fitted per detector on a 16 x 16 deg grid; the brightest pixel must be the
+  source's;
+* **fitted** with :func:`rotmod.sources.spectra.fit_spectra`, forward-folded, Poisson, every
+  slice's transmission modelled, in any of these ways (``--fits``):
 
   - ``template``: the background as four templates in time and energy (CXB, continuum, line,
-    internal) whose scales are fitted;
+    internal) whose scales are fitted (``background_free="component"``);
   - ``constant``: the same four templates held constant in time (each its flight mean), the
     scales fitted -- the background's level and spectrum free, its time dependence ignored;
   - ``levels``: a constant free level per detector and channel (the fit as it was), on the
     same slices;
   - ``folded``: the fit as it was on the flight's folded counts (slices summed), the source
-    through the flight's mean transmission: exact for folded data (every mask-angle bin
-    samples the whole flight alike), but the levels leave only the modulation to measure
-    the source.
+    through the flight's mean transmission (every mask-angle bin samples the whole flight
+    alike, to first order: with a trend inside a slice, a bin is seen at a fixed phase of
+    the turn), but the levels leave only the modulation to measure the source;
+  - ``shape``: the templates' sum at their nominal scales (1) as the shape in time only, with
+    a free scale per detector and channel (``background_free="level"`` with a template): the
+    shape in energy and across detectors is not trusted, but the components' mix sets the
+    time shape in each channel, and the nominal mix is not the injected one;
+  - ``shape_true``: the same with the injected sum (``TRUE_SCALES``) as the template: the
+    exact time shape;
+  - ``template_tilt``, ``shape_tilt`` and ``shape_true_tilt``: ``template``, ``shape`` and
+    ``shape_true`` with a wrong-shaped continuum template -- tilted by
+    ``(E_c / 300 keV)^-tilt`` in channel energy (its index steeper by ``--tilt``, default
+    0.1) in the fitted template but not in the injected counts.
 
 Results: the fitted index and K against the truth (mean pull = bias in units of the error,
-coverage of the 1-sigma errors), the background scales, and each fit's time.
+coverage of the 1-sigma errors), the background scales, and each fit's time; an Asimov fit
+(the expected counts as data: the bias without noise) of each, and of ``template_tilt`` at
+smaller tilts (``--asimov-tilts``).
 
     nice -n 10 env OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 PYTHONPATH=src \\
         python benchmarks/flight_4h.py --n 30 --out benchmarks/results/flight_4h.json
+
+``--merge a.json b.json`` summarises several runs together; it refuses runs of different
+setups or of the same seed (the same draws twice).
 """
 
 from __future__ import annotations
@@ -76,6 +92,12 @@ START = PowerLaw(1e-2, -1.6)
 TRUE_SCALES = {"cxb": 1.0, "continuum": 1.2, "line": 0.8, "internal": 1.0}
 #: Detector-internal background, counts s^-1 keV^-1 per detector in measured energy.
 INTERNAL = PowerLaw(0.1, -1.0)
+FITS = ("template", "constant", "levels", "folded", "shape", "shape_true", "template_tilt",
+        "shape_tilt", "shape_true_tilt")
+#: The arguments that make the expected counts: runs merged must agree on them.
+SETUP_ARGS = ("slices", "bins", "rings", "nodes", "channels", "photons")
+#: The Poisson draws' seed of runs made before --seed was an argument (then fixed).
+OLD_SEED = 2026
 
 
 def altitude(t_h: np.ndarray) -> np.ndarray:
@@ -132,6 +154,13 @@ def setup(args: argparse.Namespace) -> dict:
             "depth": atm.column_depth(h, 0.0).reshape(n_s, per).mean(axis=1)}
 
 
+def tilted(tmpl: dict, channels: np.ndarray, tilt: float) -> dict:
+    """The templates with the continuum's index off by ``tilt``: times ``(E_c / 300
+    keV)^-tilt`` at each channel's geometric centre ``E_c`` (a wrong-shaped template)."""
+    e_c = np.sqrt(channels[:-1] * channels[1:])
+    return {k: v * (e_c / 300.0) ** -tilt if k == "continuum" else v for k, v in tmpl.items()}
+
+
 def image(s: dict, y: np.ndarray) -> tuple[float, float]:
     """The flight's image in 150-500 keV (folded counts summed over the slices; MLEM, the
     background fitted per detector): the distance (deg) from the source to the brightest
@@ -159,7 +188,11 @@ def main() -> None:
     ap.add_argument("--channels", type=int, default=24, help="energy channels")
     ap.add_argument("--photons", type=int, default=2000, help="detector MC photons per node")
     ap.add_argument("--fits", default="template,constant,levels,folded",
-                    help="comma-separated fits to run")
+                    help="comma-separated fits to run: " + ", ".join(FITS))
+    ap.add_argument("--tilt", type=float, default=0.1,
+                    help="the wrong continuum template's index error (the *_tilt fits)")
+    ap.add_argument("--asimov-tilts", default="",
+                    help="comma-separated smaller tilts of template_tilt's Asimov fit")
     ap.add_argument("--seed", type=int, default=2026, help="seed of the Poisson draws")
     ap.add_argument("--no-image", action="store_true", help="skip the images")
     ap.add_argument("--out", default=None, help="JSON file for the results")
@@ -178,9 +211,19 @@ def main() -> None:
     mu = expected_counts(cols, expo, [TRUTH], background=truth_bkg)
     mu_src = expected_counts(cols, expo, [TRUTH])
     flat = {k: np.broadcast_to(v.mean(axis=0), v.shape) for k, v in tmpl.items()}
+    wrong = tilted(tmpl, s["channels"], args.tilt)
     fits = {"template": {"background": tmpl, "background_free": "component"},
             "constant": {"background": flat, "background_free": "component"},
-            "levels": {}, "folded": {}}
+            "levels": {}, "folded": {},
+            "shape": {"background": sum(tmpl.values()), "background_free": "level"},
+            "shape_true": {"background": truth_bkg, "background_free": "level"},
+            "template_tilt": {"background": wrong, "background_free": "component"},
+            "shape_tilt": {"background": sum(wrong.values()), "background_free": "level"},
+            "shape_true_tilt": {"background": sum(TRUE_SCALES[k] * wrong[k] for k in names),
+                                "background_free": "level"}}
+    unknown = set(args.fits.split(",")) - set(fits)
+    if unknown:
+        raise SystemExit(f"--fits: unknown {sorted(unknown)}; choose from {', '.join(FITS)}")
     fits = {k: fits[k] for k in args.fits.split(",")}
     # The flight's folded counts (slices summed): the sources through the flight's mean
     # transmission (equal slices), one interval, a constant level per detector and channel.
@@ -210,16 +253,17 @@ def main() -> None:
                     "background_counts": float(mu.sum() - mu_src.sum()),
                     "altitude": s["altitude"].tolist(), "depth": s["depth"].tolist(),
                     "zenith": s["zenith"].tolist(), "true_scales": TRUE_SCALES,
-                    "realisations": []}
+                    "seed": args.seed, "realisations": []}
     # Asimov: each fit on the expected counts (its bias without noise).
     asimov = {}
+    comp = {name for name, kw in fits.items() if kw.get("background_free") == "component"}
     for name, kw in fits.items():
         t1 = time.time()
         f = fit_spectra(*data(name, mu), [START], **kw)
         asimov[name] = {"K": f.models[0].K, "index": f.models[0].index,
                         "K_err": f.errors[0]["K"], "index_err": f.errors[0]["index"],
-                        "scales": f.scales.tolist() if kw else None,
-                        "scale_errors": f.scale_errors.tolist() if kw else None,
+                        "scales": f.scales.tolist() if name in comp else None,
+                        "scale_errors": f.scale_errors.tolist() if name in comp else None,
                         "loglike": f.loglike, "time_s": time.time() - t1}
         a = asimov[name]
         print(f"Asimov {name:>9}: index {a['index']:.4f} +- {a['index_err']:.4f}, "
@@ -227,6 +271,18 @@ def main() -> None:
               + (" ".join(f"{k} {v:.4f}+-{e:.4f}" for k, v, e in
                           zip(names, a["scales"], a["scale_errors"], strict=True))
                  if a["scales"] else "") + f" ({a['time_s']:.1f} s)")
+    for tilt in (float(v) for v in args.asimov_tilts.split(",") if v):
+        t1 = time.time()
+        kw = {"background": tilted(tmpl, s["channels"], tilt), "background_free": "component"}
+        f = fit_spectra(cols, mu, expo, [START], **kw)
+        asimov[f"template_tilt {tilt:g}"] = {
+            "K": f.models[0].K, "index": f.models[0].index, "K_err": f.errors[0]["K"],
+            "index_err": f.errors[0]["index"], "scales": f.scales.tolist(),
+            "scale_errors": f.scale_errors.tolist(), "loglike": f.loglike,
+            "time_s": time.time() - t1}
+        print(f"Asimov template_tilt {tilt:g}: index {f.models[0].index:.4f} +- "
+              f"{f.errors[0]['index']:.4f}, K {f.models[0].K:.4e}, -2 lnL "
+              f"{-2 * f.loglike:.1f}, scales " + " ".join(f"{v:.4f}" for v in f.scales))
     report["asimov"] = asimov
     rng = np.random.default_rng(args.seed)
     for r in range(args.n):
@@ -243,10 +299,13 @@ def main() -> None:
                          "K_err": f.errors[0]["K"], "index_err": f.errors[0]["index"],
                          "converged": f.converged, "loglike": f.loglike,
                          "time_s": time.time() - t1}
-            if kw:
+            if name in comp:
                 row[name]["scales"] = f.scales.tolist()
                 row[name]["scale_errors"] = f.scale_errors.tolist()
         report["realisations"].append(row)
+        if args.out:                      # kept after each realisation: a run cut short counts
+            with open(args.out, "w") as f:
+                json.dump(report, f, indent=1)
         print(f"{r:3d} " + ("" if args.no_image else f"image {row['image_offset_deg']:.2f} "
               f"deg (x{row['image_contrast']:.2f}); ") + "; ".join(
             f"{n} {row[n]['index']:.3f}+-{row[n]['index_err']:.3f} ({row[n]['time_s']:.1f} s)"
@@ -268,7 +327,7 @@ def summarise(report: dict, fits: list[str], names: list[str]) -> None:
     report["summary"] = summary
     if all("image_offset_deg" in r for r in rows):
         image_summary(report, rows)
-    print(f"{'fit':>9} {'param':>6} {'mean':>11} {'median err':>11} {'mean pull':>10} "
+    print(f"{'fit':>13} {'param':>6} {'mean':>11} {'median err':>11} {'mean pull':>10} "
           f"{'pull std':>9} {'in 1 sigma':>11} {'in 1.645':>11} {'median s':>9}")
     for name in fits:
         fit_summary(summary, rows, name, names, truth)
@@ -299,7 +358,7 @@ def fit_summary(summary: dict, rows: list, name: str, names: list[str], truth: d
         summary[name][p] = {"mean": float(v.mean()), "median_err": float(np.median(e)),
                             "mean_pull": float(pull.mean()), "pull_std": float(pull.std(ddof=1)),
                             "in1": k1, "in90": k9, "n": n, "median_time_s": float(t)}
-        print(f"{name:>9} {p:>6} {v.mean():>11.4g} {np.median(e):>11.3g} "
+        print(f"{name:>13} {p:>6} {v.mean():>11.4g} {np.median(e):>11.3g} "
               f"{pull.mean():>10.2f} {pull.std(ddof=1):>9.2f} {k1:>5d}/{n:<5d} "
               f"{k9:>5d}/{n:<5d} {t:>9.1f}")
     if "scales" in rows[0][name]:
@@ -311,7 +370,7 @@ def fit_summary(summary: dict, rows: list, name: str, names: list[str], truth: d
                 "mean_pull": float(pull[:, j].mean()), "pull_std": float(pull[:, j].std(ddof=1)),
                 "in1": int(np.sum(np.abs(pull[:, j]) < 1))}
             for j, k in enumerate(names)}
-        print(f"{'':>9} scales " + "; ".join(
+        print(f"{'':>13} scales " + "; ".join(
             f"{k} {sc[:, j].mean():.4f} (err {np.median(se[:, j]):.4f}, pull "
             f"{pull[:, j].mean():+.2f} +- {pull[:, j].std(ddof=1):.2f}, in 1 sigma "
             f"{np.sum(np.abs(pull[:, j]) < 1)}/{n})" for j, k in enumerate(names)))
@@ -319,11 +378,27 @@ def fit_summary(summary: dict, rows: list, name: str, names: list[str], truth: d
 
 def merge(paths: list[str]) -> None:
     """Summarise the realisations of several runs' JSON files together (the fits they all
-    hold)."""
-    reports = [json.load(open(p)) for p in paths]
+    hold); refuse runs whose expected counts differ (``SETUP_ARGS``), whose seeds repeat (the
+    same draws counted twice) or whose wrong templates differ (``tilt``, for the ``*_tilt``
+    fits)."""
+    reports = []
+    for p in paths:
+        with open(p) as f:
+            reports.append(json.load(f))
+    args = [rep["args"] for rep in reports]
+    for k in SETUP_ARGS:
+        if len({a[k] for a in args}) > 1:
+            each = ", ".join(f"{p}: {a[k]}" for p, a in zip(paths, args, strict=True))
+            raise SystemExit(f"--merge: the runs differ in --{k} ({each})")
+    seeds = [rep.get("seed", a.get("seed", OLD_SEED)) for rep, a in zip(reports, args, strict=True)]
+    if len(set(seeds)) < len(seeds):
+        raise SystemExit(f"--merge: two runs share a seed ({', '.join(map(str, seeds))}): "
+                         "their realisations are the same draws")
     rows = [r for rep in reports for r in rep["realisations"]]
-    fits = [f for f in ("template", "constant", "levels", "folded")
-            if all(f in r for r in rows)]
+    fits = [f for f in FITS if all(f in r for r in rows)]
+    if any(f.endswith("_tilt") for f in fits) and len({a.get("tilt") for a in args}) > 1:
+        raise SystemExit("--merge: the runs' wrong templates differ in --tilt")
+    print(f"{len(rows)} realisations of {len(paths)} runs (seeds {', '.join(map(str, seeds))})")
     report = {"realisations": rows}
     summarise(report, fits, list(TRUE_SCALES))
 

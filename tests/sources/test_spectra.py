@@ -4,6 +4,8 @@ per-source spectra extracted channel by channel with their response."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -20,6 +22,7 @@ from rotmod.sky import PointSources, SkyGrid
 from rotmod.sources.likelihood import Groups, maximise
 from rotmod.sources.spectra import (
     SpectralColumns,
+    _scale_derivatives,
     expected_counts,
     extract_spectrum,
     fit_spectra,
@@ -523,3 +526,57 @@ def test_template_bad_input(flight, detector_response) -> None:
     with pytest.raises(ParameterError, match="transmission must broadcast"):
         spectral_columns(resp, (4.0, 60.0), detector_response,
                          transmission=np.ones((2, 3, 5)))
+
+
+def test_as_many_slices_as_detectors_needs_the_full_shape(flight) -> None:
+    """With 7 slices and 7 detectors a 2-D exposure or background could be per slice or per
+    detector: each is refused, naming the parameter, and the 3-D shape is accepted and
+    means what it says (a per-detector exposure read as per-slice would put slice s's
+    time into detector s)."""
+    cols, one = flight
+    n_det, n_c = cols.shape[1], cols.shape[-1]
+    trans = np.broadcast_to(cols.transmission[:1], (n_det, *cols.transmission.shape[1:]))
+    seven = SpectralColumns(one.columns, one.redistribution, one.energies,
+                            one.channel_edges, one.theta, trans)
+    assert seven.shape[:2] == (n_det, n_det)
+    per_det = np.linspace(100.0, 400.0, n_det)[:, None] * np.ones((1, 12))
+    tmpl = _templates(n_c)["continuum"][:1].repeat(n_det, axis=0)       # (7, n_c)
+    y = np.ones(seven.shape)
+    start = [PowerLaw()]
+    with pytest.raises(ParameterError, match=r"exposure of shape \(7, 12\) is ambiguous"):
+        fit_spectra(seven, y, per_det, start)
+    with pytest.raises(ParameterError, match=r"exposure of shape \(7, 12\) is ambiguous"):
+        expected_counts(seven, per_det, start)
+    with pytest.raises(ParameterError, match=r"background\['background'\] of shape \(7, 24\) "
+                                             "is ambiguous"):
+        fit_spectra(seven, y, np.ones(12), start, background=tmpl)
+    with pytest.raises(ParameterError, match=r"background of shape \(7, 24\) is ambiguous"):
+        expected_counts(seven, np.ones(12), start, background=tmpl)
+    # The full shapes: detector d's exposure in every slice, the template per slice.
+    full = np.broadcast_to(per_det, (n_det, n_det, 12))
+    mu = expected_counts(seven, full, start, background=tmpl[:, None, :] * np.ones((1, n_det, 1)))
+    rate = seven.rates(0, start[0]) + tmpl[:, None, None, :]
+    np.testing.assert_allclose(mu, rate * per_det[None, :, :, None], rtol=1e-12)
+    # With 4 slices a (7, 12) exposure can only be per detector, and is read so.
+    np.testing.assert_array_equal(expected_counts(cols, per_det, start),
+                                  expected_counts(cols, np.broadcast_to(per_det, (N_SLICE, 7, 12)),
+                                                  start))
+
+
+def test_scale_derivative_steps_stay_in_the_model_domain() -> None:
+    """A parameter whose -0.3 sigma step leaves the model's domain (``K`` of a faint source,
+    ``K < 0.3 sigma_K``) gets a one-sided derivative, not a silent 0: on a profile whose
+    scales are linear in the parameters (``x = (2 K + 3 index, -K)``) both differences
+    are exact (rounding), so the Jacobian is the analytic ``[[2, 3], [-1, 0]]``."""
+    model = PowerLaw(0.1, -2.0)
+    found = SimpleNamespace(free=[("K", "index")], models=(model,),
+                            errors=({"K": 1.0, "index": 0.2},))
+
+    def profile(ms):
+        m = ms[0]
+        return 0.0, SimpleNamespace(x=np.array([2.0 * m.K + 3.0 * m.index, -m.K]))
+
+    scales = profile([model])[1].x
+    jac, inner = _scale_derivatives(profile, found, scales)
+    np.testing.assert_array_equal(inner, [0, 1])
+    np.testing.assert_allclose(jac, [[2.0, 3.0], [-1.0, 0.0]], rtol=1e-9, atol=1e-9)

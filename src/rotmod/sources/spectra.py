@@ -273,7 +273,8 @@ class SourceSpectraFit:
         Their 1-sigma errors, marginal over the spectral parameters: the conditional
         covariance plus ``J C J^T``, ``C`` the spectral parameters' covariance and ``J`` the
         profiled scales' derivatives with respect to them (the inverse of the joint
-        Hessian's block, written with the profile).
+        Hessian's block, written with the profile; one-sided derivatives where a step
+        leaves a model's domain, NaN where no step stays in it).
     """
 
     models: tuple[SpectralModel, ...]
@@ -340,15 +341,17 @@ def fit_spectra(
         expected counts (an Asimov data set) are accepted too.
     exposure : array_like
         Good time (s) per bin: ``(n_time,)`` or ``(n_det, n_time)``; for time slices also
-        ``(n_slice, n_time)`` or ``(n_slice, n_det, n_time)``.
+        ``(n_slice, n_time)`` or ``(n_slice, n_det, n_time)``.  With as many slices as
+        detectors a 2-D exposure is ambiguous and refused: give the 3-D shape.
     models : sequence of SpectralModel
         One per source, the start values.
     free : sequence of sequences of str, optional
         Per source the parameters to fit (default all but ``piv``).
     background : array_like or mapping of str to array_like, optional
         The background template(s), counts/s (any scale): ``(n_c,)`` or ``(n_det, n_c)``,
-        for time slices ``(n_slice, n_c)`` or ``(n_slice, n_det, n_c)``; a mapping names
-        several components (``background_free="component"``).  Default: flat.
+        for time slices ``(n_slice, n_c)`` or ``(n_slice, n_det, n_c)`` (with as many slices
+        as detectors only the latter: a 2-D template is then ambiguous and refused); a
+        mapping names several components (``background_free="component"``).  Default: flat.
     background_free : {"level", "detector", "component"}
         Which normalisations are free (above).
     off_counts : array_like, shape (n_det, n_c), optional
@@ -403,7 +406,8 @@ def fit_spectra(
     scales = best.x
     # The scales' covariance with the spectral parameters held (the inverse Hessian of
     # -ln L in the scales), then marginal: + J C J^T, J = d(scales)/d(parameters) along the
-    # profile (central differences at 0.3 sigma, as the parameters' own Hessian steps).
+    # profile (central differences at 0.3 sigma, as the parameters' own Hessian steps;
+    # one-sided where a step leaves the model's domain).
     if groups is None:
         cov = best.covariance()
     else:
@@ -432,22 +436,39 @@ def _scale_derivatives(profile: Any, found: Any, scales: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
     """``d(scales)/d(parameter)`` along the profile at the fit, for the parameters with an
     error (the others are held), by central differences at 0.3 of each one's error; and the
-    indices of those parameters in the fit's covariance."""
+    indices of those parameters in the fit's covariance.
+
+    Where a step leaves the model's domain (a ParameterError: e.g. ``K - h <= 0`` for a
+    faint source) the difference is one-sided on the side that stays in it, from the fit's
+    own ``scales``; where both do, the step is halved (at most 10 times) until one side is
+    in.  A parameter no step can move leaves its column NaN, and so the scales' errors: never
+    a derivative silently taken as 0.
+    """
     owner = [(i, p) for i, f in enumerate(found.free) for p in f]
     err = np.array([found.errors[i][p] for i, p in owner])
     inner = np.flatnonzero(np.isfinite(err) & (err > 0))
-    jac = np.zeros((scales.size, inner.size))
+    jac = np.full((scales.size, inner.size), np.nan)
     for col, q in enumerate(inner):
         i, p = owner[q]
+        model, v = found.models[i], found.models[i].parameters[p]
         h = 0.3 * err[q]
-        lo, hi = (list(found.models) for _ in range(2))
-        v = found.models[i].parameters[p]
-        try:
-            hi[i] = found.models[i].with_parameters(**{p: v + h})
-            lo[i] = found.models[i].with_parameters(**{p: v - h})
-        except ParameterError:  # a step outside the model's domain: hold it
-            continue
-        jac[:, col] = (profile(hi)[1].x - profile(lo)[1].x) / (2.0 * h)
+        for _ in range(11):
+            side = {}
+            for sign in (1.0, -1.0):
+                try:
+                    side[sign] = model.with_parameters(**{p: v + sign * h})
+                except ParameterError:  # outside the model's domain
+                    continue
+            if side:
+                break
+            h /= 2.0
+        x = {sign: profile([*found.models[:i], m, *found.models[i + 1:]])[1].x
+             for sign, m in side.items()}
+        if len(x) == 2:
+            jac[:, col] = (x[1.0] - x[-1.0]) / (2.0 * h)
+        elif x:
+            sign, xs = next(iter(x.items()))
+            jac[:, col] = sign * (xs - scales) / h
     return jac, inner
 
 
@@ -483,6 +504,8 @@ def _templates(background: Any, shape: tuple[int, ...], free: str
             a = np.asarray(t, dtype=float)
         except (TypeError, ValueError):
             raise ParameterError(f"background[{name!r}] must be numbers") from None
+        if sliced and a.ndim == 2:
+            _check_per_slice(a.shape, shape[:-2], f"background[{name!r}]", "n_channels")
         if a.ndim == len(shape) - 2:          # no detector axis: the same in every detector
             a = np.expand_dims(a, -2)
         if a.ndim != len(shape) - 1 or a.shape[-1] != n_c or a.shape[-2] not in (1, n_det) or (
@@ -729,7 +752,8 @@ def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[Sp
     """Expected counts (:attr:`SpectralColumns.shape`) of the sources' spectra plus a
     background rate per detector and channel (counts/s, broadcast to ``(n_det, n_c)``; for
     a flight's time slices to ``(n_slice, n_det, n_c)``, where a 2-D rate is ``(n_slice,
-    n_c)``, the same in every detector)."""
+    n_c)``, the same in every detector -- refused as ambiguous when there are as many slices
+    as detectors, as a 2-D exposure is: give the 3-D shape)."""
     shape = columns.shape
     expo = _exposure(exposure, shape[:-1])
     if len(models) != columns.columns.shape[0]:
@@ -737,6 +761,7 @@ def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[Sp
                              f"({columns.columns.shape[0]}), got {len(models)}")
     b = np.asarray(background, dtype=float)
     if len(shape) == 4 and b.ndim == 2:
+        _check_per_slice(b.shape, shape[:-2], "background", "n_channels")
         b = b[:, None, :]
     want = (*shape[:-3], shape[-3], shape[-1])
     try:
@@ -748,6 +773,20 @@ def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[Sp
     return rate * expo[..., None]
 
 
+def _check_per_slice(got: tuple[int, ...], shape: tuple[int, ...], name: str, last: str
+                     ) -> None:
+    """For a flight's time slices (``shape`` = ``(n_slice, n_det, ...)``) a 2-D array is read
+    as ``(n_slice, last)``, the same in every detector; when there are as many slices as
+    detectors it could as well be ``(n_det, last)``: a ParameterError asks for the full
+    shape rather than guessing."""
+    n_s, n_det = shape[0], shape[1]
+    if n_s == n_det > 1 and got[0] == n_s:
+        raise ParameterError(
+            f"{name} of shape {got} is ambiguous: with {n_s} time slices and {n_det} "
+            f"detectors it could be (n_slice, {last}) or (n_det, {last}); give the full "
+            f"(n_slice, n_det, {last}) shape")
+
+
 def _exposure(exposure: Any, shape: tuple[int, ...]) -> np.ndarray:
     """``exposure`` as ``shape`` = ``([n_slice,] n_det, n_t)`` seconds, or a ParameterError
     naming the rule: one value, ``(n_t,)`` or ``(n_det, n_t)``; for time slices also
@@ -755,9 +794,13 @@ def _exposure(exposure: Any, shape: tuple[int, ...]) -> np.ndarray:
     n_det, n_t = shape[-2:]
     try:
         e = np.asarray(exposure, dtype=float)
+        if len(shape) == 3 and e.ndim == 2:
+            _check_per_slice(e.shape, shape, "exposure", "n_time")
         if len(shape) == 3 and e.ndim == 2 and e.shape == (shape[0], n_t):
             e = e[:, None, :]                  # per slice and bin, the same in every detector
         expo = np.broadcast_to(e, shape) if e.ndim <= len(shape) else None
+    except ParameterError:
+        raise
     except (TypeError, ValueError):
         expo = None
     if expo is None or not np.all(np.isfinite(expo)) or np.any(expo < 0):

@@ -21,8 +21,9 @@ every product.  :func:`coarse_to_fine` (``reconstruct(..., coarse=...)``):
    (and their neighbours) join the support and step 2 is repeated.
 
 With ``ts_cut = 0`` the check is the Karush-Kuhn-Tucker condition of the full problem
-(no pixel held at 0 has a positive likelihood gradient), so the result is the
-full-resolution maximum-likelihood solution (an active-set method).  The default
+(no pixel held at 0 has a positive likelihood gradient), so a converged
+maximum-likelihood solve on the support is the full-resolution maximum (an active-set
+method; tested where the solves converge).  The default
 ``ts_cut = 25`` (5 sigma) leaves at 0 the pixels whose flux the data support at less than
 that, i.e. the noise peaks a full-resolution maximum-likelihood solve switches on;
 docs/reconstruction.md measures what that changes against the full solve.

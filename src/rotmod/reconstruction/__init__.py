@@ -24,6 +24,7 @@ from rotmod.reconstruction.base import (
 )
 from rotmod.reconstruction.bootstrap import bootstrap_images
 from rotmod.reconstruction.data import ForwardModel, PoissonData, as_data
+from rotmod.reconstruction.multires import Refinement, coarse_to_fine
 from rotmod.reconstruction.sgp import SGP, Sparse, select_weight, thin_counts
 from rotmod.reconstruction.stats import chi2, deviance, log_likelihood
 
@@ -40,11 +41,13 @@ __all__ = [
     "PoissonData",
     "ReconstructionResult",
     "Reconstructor",
+    "Refinement",
     "Sparse",
     "StoppingRule",
     "as_data",
     "bootstrap_images",
     "chi2",
+    "coarse_to_fine",
     "deviance",
     "get_algorithm",
     "log_likelihood",

@@ -15,6 +15,7 @@ from rotmod._validate import as_int
 from rotmod.errors import ParameterError
 from rotmod.reconstruction.base import ReconstructionResult, Reconstructor, get_algorithm
 from rotmod.reconstruction.bootstrap import _replica_seconds, bootstrap_images, check_bootstrap
+from rotmod.reconstruction.multires import Refinement, coarse_to_fine
 from rotmod.response.operator import ResponseOperator
 
 __all__ = ["DEFAULT_METHOD", "reconstruct"]
@@ -33,6 +34,7 @@ def reconstruct(
     n_boot: int = 20,
     redraw: str = "data",
     seed: Any = None,
+    coarse: Refinement | int | None = None,
     **params: Any,
 ) -> ReconstructionResult:
     """Reconstruct a sky image in one line.
@@ -54,6 +56,11 @@ def reconstruct(
         Re-draw from the observed counts (``y* ~ Poisson(y)``) or from the fitted model.
     seed : None, int or numpy.random.SeedSequence
         Seeds the bootstrap and, for randomised methods (NCAR), the method.
+    coarse : Refinement or int, optional
+        Solve coarse-to-fine (:func:`~rotmod.reconstruction.multires.coarse_to_fine`): a
+        coarse grid first, then the method at full resolution on the pixels with flux,
+        checked at full resolution by a score test.  An int is the coarse factor.  Not
+        with ``uncertainty``.
     **params
         Passed to the solver class (stopping rule, callbacks, grid, exposure, background,
         fit_background and the algorithm's own parameters).
@@ -74,6 +81,11 @@ def reconstruct(
         params["seed"] = own
     if uncertainty not in (None, "bootstrap"):
         raise ParameterError(f"uncertainty must be None or 'bootstrap', got {uncertainty!r}")
+    if coarse is not None:
+        if uncertainty is not None:
+            raise ParameterError("coarse: a coarse-to-fine solve has no bootstrap yet; "
+                                 "pass uncertainty=None")
+        return coarse_to_fine(response, data, cls, coarse, **params)
     if uncertainty == "bootstrap":  # the replicas' memory, before the main run
         n_boot = as_int(n_boot, "n_boot", 2)
         check_bootstrap(n_boot, response.n_sky)

@@ -1,0 +1,276 @@
+"""Coarse-to-fine reconstruction: a coarse grid first, full resolution where the sky has flux.
+
+A wide field's image is mostly empty, yet a full-resolution solve pays for every pixel in
+every product.  :func:`coarse_to_fine` (``reconstruct(..., coarse=...)``):
+
+1. **coarse**: the grid binned ``factor x factor`` and a response on it (a
+   :class:`~rotmod.response.RadonResponse` at a loose tolerance when the response is one),
+   a short maximum-likelihood solve (:class:`~rotmod.reconstruction.SGP`) there; the
+   *support* is the coarse pixels whose flux is significant (``z_j^2 I_j > ts_cut``, with
+   ``I_j`` the Fisher information of the pixel's flux, the score test's), the most
+   significant first and at most ``max_pixels`` fine pixels of them, at full resolution
+   (the coarse response's looser tolerance makes bright sources leave significant residue
+   around them: uncapped, the wide field's support would be 150,400 pixels);
+2. **fine**: the method itself on the full-resolution problem restricted to the support
+   (:class:`~rotmod.response.subset.PixelSubset`: the response's own columns, so the
+   image is a solution of the full-resolution problem with the other pixels at 0);
+3. **check, at full resolution**: every pixel outside the support is tested for flux the
+   data ask for, by the score test against the fitted model (``U_j = sum E P_ij (y/mu -
+   1)``, ``I_j = sum E^2 P_ij^2 / mu``, ``TS_j = U_j^2 / I_j`` where ``U_j > 0``: one
+   adjoint and one squared adjoint of the full response); pixels with ``TS_j > ts_cut``
+   (and their neighbours) join the support and step 2 is repeated.
+
+With ``ts_cut = 0`` the check is the Karush-Kuhn-Tucker condition of the full problem
+(no pixel held at 0 has a positive likelihood gradient), so a converged
+maximum-likelihood solve on the support is the full-resolution maximum (an active-set
+method; tested where the solves converge).  The default
+``ts_cut = 25`` (5 sigma) leaves at 0 the pixels whose flux the data support at less than
+that, i.e. the noise peaks a full-resolution maximum-likelihood solve switches on;
+docs/reconstruction.md measures what that changes against the full solve.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from rotmod._validate import as_int, as_scalar
+from rotmod.errors import ParameterError
+from rotmod.reconstruction.base import (
+    ReconstructionResult,
+    Reconstructor,
+    StoppingRule,
+    _safe_div,
+)
+from rotmod.reconstruction.data import ForwardModel, PoissonData, as_data
+from rotmod.reconstruction.sgp import SGP
+from rotmod.response.materialised import build_response
+from rotmod.response.operator import ResponseOperator
+from rotmod.response.radon import RadonResponse
+from rotmod.response.subset import PixelSubset
+from rotmod.sky import SkyGrid
+
+__all__ = ["Refinement", "coarse_grid", "coarse_to_fine"]
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """How :func:`coarse_to_fine` refines (``reconstruct(..., coarse=Refinement(...))``;
+    an int ``f`` there means ``Refinement(factor=f)``).
+
+    Parameters
+    ----------
+    factor : int
+        Fine pixels per coarse pixel along each axis (>= 2).
+    tolerance : float
+        Tolerance of the coarse :class:`~rotmod.response.RadonResponse` (it only locates
+        flux; the fine solve uses the full response).
+    iterations : int
+        SGP iterations of the coarse solve.
+    ts_cut : float
+        Coarse pixels whose flux is significant at this TS start the support, and pixels
+        outside it whose score TS exceeds it join it (>= 0; 0: every coarse pixel with
+        flux, and the full problem's optimality condition).
+    max_pixels : int
+        Most fine pixels the coarse stage puts in the support (the check adds any others
+        the data ask for).
+    margin : int
+        Fine pixels around each added pixel that join with it (>= 0).
+    max_rounds : int
+        Most fine solves (>= 1); the last check is reported either way.
+    """
+
+    factor: int = 5
+    tolerance: float = 1e-2
+    iterations: int = 100
+    ts_cut: float = 25.0
+    max_pixels: int = 1500
+    margin: int = 1
+    max_rounds: int = 4
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "factor", as_int(self.factor, "coarse.factor", 2))
+        object.__setattr__(self, "tolerance", as_scalar(self.tolerance, "coarse.tolerance",
+                                                        lo=0.0, lo_open=True, hi=0.1))
+        object.__setattr__(self, "iterations", as_int(self.iterations, "coarse.iterations", 1))
+        object.__setattr__(self, "ts_cut", as_scalar(self.ts_cut, "coarse.ts_cut", lo=0.0))
+        object.__setattr__(self, "max_pixels", as_int(self.max_pixels, "coarse.max_pixels",
+                                                      self.factor**2))
+        object.__setattr__(self, "margin", as_int(self.margin, "coarse.margin", 0))
+        object.__setattr__(self, "max_rounds", as_int(self.max_rounds, "coarse.max_rounds", 1))
+
+
+@dataclass
+class _Round:
+    pixels: int
+    solve_s: float
+    check_s: float
+    max_ts_outside: float
+    added: int
+
+
+def coarse_grid(grid: SkyGrid, factor: int) -> SkyGrid:
+    """``grid`` binned ``factor x factor``: coarse pixel ``(cy, cx)`` covers fine pixels
+    ``[cy f, cy f + f) x [cx f, cx f + f)`` (a side that ``factor`` does not divide gets a
+    last coarse pixel reaching past the field), same tangent point."""
+    ny, nx = grid.shape
+    cy, cx = -(-ny // factor), -(-nx // factor)
+    pix = grid.pixel_size
+    # The coarse pixel centres are the means of their fine pixels' centres (the TAN plane is
+    # linear in the pixel index); the fine field's first centre is at center - (n - 1)/2 pix.
+    sx = grid.center[0] + 0.5 * (cx * factor - nx) * pix
+    sy = grid.center[1] + 0.5 * (cy * factor - ny) * pix
+    return SkyGrid((cy, cx), factor * pix, center=(sx, sy), tangent=grid.tangent)
+
+
+def _coarse_response(response: ResponseOperator, grid: SkyGrid,
+                     tolerance: float) -> ResponseOperator:
+    spec = response.spec
+    if spec is None:
+        raise ParameterError("response: coarse-to-fine needs a response with a spec "
+                             "(instrument, grid, time bins, model, energy)")
+    cspec = type(spec)(spec.instrument, grid, spec.time_bins, spec.model, spec.energy,
+                       spec.distance, spec.dtype)
+    if isinstance(response, RadonResponse):
+        return RadonResponse(cspec, tolerance=tolerance)
+    return build_response(cspec)
+
+
+def _fine_pixels(mask_coarse: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
+    """Fine-grid mask of the coarse pixels in ``mask_coarse``."""
+    up = np.repeat(np.repeat(mask_coarse, factor, axis=0), factor, axis=1)
+    return up[: shape[0], : shape[1]]
+
+
+def _fisher_weights(model: ForwardModel, mu: np.ndarray) -> np.ndarray:
+    """``E^2 / mu``: ``(P o P)^T`` of it is each pixel's Fisher information."""
+    return model.E * model.E * _safe_div(np.ones_like(mu), mu)
+
+
+def _score_ts(response: ResponseOperator, model: ForwardModel, mu: np.ndarray) -> np.ndarray:
+    """Score TS of one more unit of flux in each pixel against the model ``mu`` (counts)."""
+    u = response.adjoint(model.E * (_safe_div(model.data.counts, mu) - 1.0))
+    info = response.adjoint_squared(_fisher_weights(model, mu))
+    return _safe_div(np.square(np.maximum(u, 0.0)), np.asarray(info, dtype=float))
+
+
+def _refine(response: ResponseOperator, pdata: PoissonData, cls: type[Reconstructor],
+            support: np.ndarray, ref: Refinement,
+            **params: Any) -> tuple[ReconstructionResult, list[_Round]]:
+    """Steps 2-3: solve on ``support`` (a boolean image, grown in place), check every other
+    pixel at full resolution, grow the support by the pixels that fail, repeat."""
+    model = ForwardModel(response, pdata)
+    rounds: list[_Round] = []
+    sub: PixelSubset | None = None
+    grow = np.ones((2 * ref.margin + 1,) * 2, dtype=bool)
+    while True:
+        ts0 = time.perf_counter()
+        pix = np.flatnonzero(support.ravel())
+        sub = PixelSubset(response, pix, reuse=sub)
+        res = cls(sub, pdata, **params).run()
+        ts1 = time.perf_counter()
+        ts = _score_ts(response, model, res.model_counts)
+        ts[pix] = 0.0
+        added = ndimage.binary_dilation((ts > ref.ts_cut).reshape(support.shape),
+                                        grow) & ~support
+        rounds.append(_Round(int(pix.size), ts1 - ts0, time.perf_counter() - ts1,
+                             float(ts.max()), int(added.sum())))
+        if not added.any() or len(rounds) >= ref.max_rounds:
+            return res, rounds
+        support |= added
+
+
+def coarse_to_fine(
+    response: ResponseOperator,
+    data: Any,
+    cls: type[Reconstructor],
+    refinement: Refinement | int = 5,
+    **params: Any,
+) -> ReconstructionResult:
+    """Reconstruct on a coarse grid, then at full resolution on the pixels with flux.
+
+    Parameters
+    ----------
+    response : ResponseOperator
+        The full-resolution response; its grid must be a :class:`~rotmod.sky.SkyGrid`.
+    data : PoissonData, FoldedProfiles or ndarray
+    cls : Reconstructor subclass
+        The method of the fine solves.
+    refinement : Refinement or int
+        The refinement's parameters (an int: the coarse factor).
+    **params
+        As for the method (``exposure``, ``background``, ``fit_background``, stopping and
+        the method's own parameters); the stopping rule and parameters apply to the fine
+        solves.
+
+    Returns
+    -------
+    ReconstructionResult
+        The last fine solve's result with its images on the full grid (0 outside the
+        support); ``extras`` add ``coarse_image``, ``support`` (boolean image),
+        ``max_ts_outside`` (the largest score TS left outside the support) and ``rounds``
+        (per fine solve: pixels, solve and check seconds, largest TS outside, pixels added).
+
+    Raises
+    ------
+    ParameterError
+        A grid other than a SkyGrid, or bad refinement parameters.
+    """
+    ref = refinement if isinstance(refinement, Refinement) else Refinement(factor=refinement)
+    grid = response.grid
+    if not isinstance(grid, SkyGrid):
+        raise ParameterError("coarse: coarse-to-fine needs a response on a SkyGrid, got "
+                             f"{type(grid).__name__}")
+    t0 = time.perf_counter()
+    pdata = as_data(data, exposure=params.pop("exposure", None),
+                    background=params.pop("background", None),
+                    fit_background=params.pop("fit_background", None))
+    params.pop("grid", None)
+    shape = grid.shape
+    # 1. coarse: where the flux is.
+    cgrid = coarse_grid(grid, ref.factor)
+    cresp = _coarse_response(response, cgrid, ref.tolerance)
+    csolve = SGP(cresp, pdata, stopping=StoppingRule(max_iter=ref.iterations, chi2_dof=None,
+                                                     rel_tol=None))
+    cres = csolve.run()
+    cimg = cres.image
+    cmodel = ForwardModel(cresp, pdata)
+    cinfo = np.asarray(cresp.adjoint_squared(_fisher_weights(cmodel, cres.model_counts)))
+    # The most significant first, at most max_pixels fine pixels of them.
+    cts = np.where(cimg > 0, np.square(cimg) * cinfo.reshape(cimg.shape), 0.0).ravel()
+    keep = np.argsort(-cts, kind="stable")[: ref.max_pixels // ref.factor**2]
+    cmask = np.zeros(cimg.size, dtype=bool)
+    cmask[keep[cts[keep] > ref.ts_cut]] = True
+    cmask = cmask.reshape(cimg.shape)
+    support = _fine_pixels(cmask, ref.factor, shape)
+    t_coarse = time.perf_counter() - t0
+    # 2-3. fine solves on the support, checked at full resolution.
+    res, rounds = _refine(response, pdata, cls, support, ref, **params)
+    pix = np.flatnonzero(support.ravel())
+    # The result on the full grid.
+    full = np.zeros(grid.size)
+    full[pix] = res.image.ravel()
+    res.image = full.reshape(shape)
+    for key, val in list(res.extras.items()):
+        arr = np.asarray(val) if isinstance(val, np.ndarray) else None
+        if arr is not None and arr.shape[-2:] == (1, pix.size):
+            out = np.zeros((*arr.shape[:-2], grid.size))
+            out[..., pix] = arr.reshape(*arr.shape[:-2], pix.size)
+            res.extras[key] = out.reshape(*arr.shape[:-2], *shape)
+    res.grid = grid
+    res.run_time = time.perf_counter() - t0
+    res.params.update(coarse=ref.factor, coarse_tolerance=ref.tolerance,
+                      coarse_iterations=ref.iterations, ts_cut=ref.ts_cut,
+                      max_pixels=ref.max_pixels, margin=ref.margin,
+                      max_rounds=ref.max_rounds)
+    res.extras.update(
+        coarse_image=cimg, support=support.copy(), max_ts_outside=rounds[-1].max_ts_outside,
+        coarse_s=t_coarse,
+        rounds=[{"pixels": r.pixels, "solve_s": r.solve_s, "check_s": r.check_s,
+                 "max_ts_outside": r.max_ts_outside, "added": r.added} for r in rounds],
+    )
+    return res

@@ -555,9 +555,9 @@ def _poisson_bins(columns: Any, counts: Any, exposure: Any, models: Sequence[Any
     if not np.all(np.isfinite(y)) or np.any(y < 0):
         raise ParameterError("counts must be finite and non-negative")
     expo = _exposure(exposure, shape[:-1])
-    if len(models) != columns.columns.shape[0]:
-        raise ParameterError(f"models must give one spectrum per source "
-                             f"({columns.columns.shape[0]}), got {len(models)}")
+    if not np.any(expo > 0):
+        raise ParameterError("exposure is 0 everywhere: nothing was observed to fit")
+    _check_models(models, columns.columns.shape[0])
     use = np.flatnonzero(np.broadcast_to((expo > 0)[..., None], y.shape))
     yv = y.astype(float).ravel()[use]
     t3 = np.broadcast_to(expo[..., None], y.shape).ravel()[use]
@@ -734,6 +734,10 @@ def _response(nodes: np.ndarray, channel_edges: np.ndarray, node: np.ndarray,
             f"the extracted source's column-weighted area is negative at {nodes[e]:g} keV in "
             f"channel {c} ({node[e, c]:.3g} cm2): its pattern at that energy is unlike its "
             "pattern in the channel; give its spectrum in models")
+    n_bins, n_c = (nodes.size - 1) * subdivide, node.shape[1]
+    # The RMF and the interpolated areas it is made from, and a few vectors per bin.
+    check_memory(8.0 * n_bins * (2 * n_c + 8), f"a response of {n_bins} energy bins x "
+                 f"{n_c} channels", hint="a smaller subdivide")
     with np.errstate(invalid="ignore", divide="ignore"):
         arf = np.where(recorded > 0, node.sum(axis=1) / recorded, 0.0)
     ln = np.log(nodes)
@@ -756,9 +760,7 @@ def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[Sp
     as detectors, as a 2-D exposure is: give the 3-D shape)."""
     shape = columns.shape
     expo = _exposure(exposure, shape[:-1])
-    if len(models) != columns.columns.shape[0]:
-        raise ParameterError(f"models must give one spectrum per source "
-                             f"({columns.columns.shape[0]}), got {len(models)}")
+    _check_models(models, columns.columns.shape[0])
     b = np.asarray(background, dtype=float)
     if len(shape) == 4 and b.ndim == 2:
         _check_per_slice(b.shape, shape[:-2], "background", "n_channels")
@@ -771,6 +773,17 @@ def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[Sp
                              f"{np.shape(background)}") from None
     rate = sum(columns.rates(k, m) for k, m in enumerate(models)) + b[..., None, :]
     return rate * expo[..., None]
+
+
+def _check_models(models: Any, n_src: int) -> None:
+    """``models``: a sequence of one :class:`SpectralModel` per source."""
+    if isinstance(models, SpectralModel | str) or not isinstance(models, Sequence) or not all(
+            isinstance(m, SpectralModel) for m in models):
+        raise ParameterError(f"models must be a list of spectral models, one per source "
+                             f"({n_src}), got {models!r}")
+    if len(models) != n_src:
+        raise ParameterError(f"models must give one spectrum per source ({n_src}), got "
+                             f"{len(models)}")
 
 
 def _check_per_slice(got: tuple[int, ...], shape: tuple[int, ...], name: str, last: str

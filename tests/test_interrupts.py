@@ -279,13 +279,17 @@ def test_ctrl_c_stops_a_long_command_within_seconds_and_writes_nothing(inputs, c
 
 
 # ------------------------------------------------------------ replacing a folder is atomic
+def _old_and_new(tmp_path: Path) -> None:
+    """A folder ``d`` (file ``f`` = "old") and its replacement ``new`` (``f`` = "new")."""
+    for name, text in (("new", "new"), ("d", "old")):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "f").write_text(text)
+
+
 def test_an_interrupt_is_held_until_both_renames_are_done(tmp_path) -> None:
     # A Ctrl-C that lands between moving the old folder aside and moving the new one in is
     # delivered only once the new one is in place: the folder is never missing.
-    (tmp_path / "new").mkdir()
-    (tmp_path / "new" / "f").write_text("new")
-    (tmp_path / "d").mkdir()
-    (tmp_path / "d" / "f").write_text("old")
+    _old_and_new(tmp_path)
     real = os.replace
     calls = []
 
@@ -309,9 +313,7 @@ def test_an_interrupt_is_held_until_both_renames_are_done(tmp_path) -> None:
 
 
 def test_a_failed_restore_keeps_the_old_folder_and_says_where(tmp_path) -> None:
-    (tmp_path / "new").mkdir()
-    (tmp_path / "d").mkdir()
-    (tmp_path / "d" / "f").write_text("old")
+    _old_and_new(tmp_path)
     real = os.replace
     calls = []
 

@@ -19,6 +19,12 @@ nearer the truth than the best position), r90/(b/L) against sqrt(TS) with a powe
 beside the coded-mask law quoted in the issue, the light-curve-weighted against the constant
 localisation, T90 against the truth, and the analysis latency.
 
+Each burst also records the light curve's dispersion (the factor its regions' TS was
+divided by, :attr:`rotmod.bursts.BurstPosition.dispersion`), the fitted pulses, and whether
+the truth is in the regions without that factor (tempered back), so one run gives the
+coverage with and without it.  ``--report --compare OLD.json ...`` sets an earlier run of
+the same draws beside this one, burst by burst.
+
 Results are appended to the JSON after every burst; ``--resume`` skips the bursts done.
 
     python benchmarks/bursts_calibration.py --n 3 --out /tmp/bcal3.json   # a check
@@ -541,6 +547,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--shape", choices=("norris", "gauss-exp"), default="norris",
                    help="the injected pulses' shape (default norris, the model's family)")
     p.add_argument("--resume", action="store_true", help="skip the bursts in --out")
+    p.add_argument("--only", default=None,
+                   help="comma-separated draw indices (< --n): run only these (e.g. the "
+                        "misses of an earlier run; not a coverage sample)")
     p.add_argument("--shard", default="0/1",
                    help="K/N: only the bursts i with i %% N == K (run N processes, one core "
                         "each, into separate --out files; --report merges them)")
@@ -612,8 +621,9 @@ def main(argv: list[str] | None = None) -> None:
     done = {r["index"] for r in data["bursts"]}
     n_nolc = sum(1 for r in data["bursts"] if "nolc" in r)
     cache: dict = {}
+    only = None if args.only is None else {int(v) for v in args.only.split(",")}
     for i in (range(args.n - 1, -1, -1) if args.reverse else range(args.n)):
-        if i in done or i % n_shards != shard:
+        if i in done or i % n_shards != shard or (only is not None and i not in only):
             continue
         t0 = time.perf_counter()
         cold = not cache

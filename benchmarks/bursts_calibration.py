@@ -19,6 +19,12 @@ nearer the truth than the best position), r90/(b/L) against sqrt(TS) with a powe
 beside the coded-mask law quoted in the issue, the light-curve-weighted against the constant
 localisation, T90 against the truth, and the analysis latency.
 
+Each burst also records the light curve's dispersion (the factor its regions' TS was
+divided by, :attr:`rotmod.bursts.BurstPosition.dispersion`), the fitted pulses, and whether
+the truth is in the regions without that factor (tempered back), so one run gives the
+coverage with and without it.  ``--report --compare OLD.json ...`` sets an earlier run of
+the same draws beside this one, burst by burst.
+
 Results are appended to the JSON after every burst; ``--resume`` skips the bursts done.
 
     python benchmarks/bursts_calibration.py --n 3 --out /tmp/bcal3.json   # a check
@@ -171,6 +177,16 @@ def run_one(i: int, seed: int, inst, att, cache: dict, do_nolc: bool) -> dict:
         t90_err=burst.durations.t90_err, fluence=burst.fluence,
         fluence_err=burst.fluence_err,
     )
+    # The light curve's misfit and what it did to the region: the dispersion the TS
+    # surfaces were divided by, and the regions undone to the likelihood's own (tempered
+    # back by its inverse) for the coverage without it, in the same run.
+    from rotmod.bursts.posterior import Posterior, tempered
+    raw = Posterior(tuple(tempered(q, 1.0 / bp.dispersion) for q in bp.posterior.squares))
+    rec.update(dispersion=bp.dispersion, misfit=bp.misfit,
+               raw_contains90=raw.contains(pos, 0.9), raw_contains68=raw.contains(pos, 0.68),
+               raw_r90=tempered(bp.region, 1.0 / bp.dispersion).radius(0.9),
+               pulse_family=None if bp.pulses is None else bp.pulses.family.name,
+               pulses=None if bp.pulses is None else bp.pulses.pulses.tolist())
     rec.update(truth_diagnostic(burst, pos))
     # Where the truth stands in the search's score map: the rank of its pixel (0 = the map's
     # best) and its score below the best.
@@ -291,6 +307,40 @@ def report(data: dict) -> str:
     for lab, sel in (("all analysed", ok), ("excluding mirror-mode wins", clean)):
         L.append(frac_line(f"90 % region, {lab}", sum(r["contains90"] for r in sel), len(sel)))
         L.append(frac_line(f"68 % region, {lab}", sum(r["contains68"] for r in sel), len(sel)))
+    infl = [r for r in ok if "dispersion" in r]
+    if infl:
+        disp = np.array([r["dispersion"] for r in infl])
+        L.append(frac_line("90 % region without the misfit's inflation",
+                           sum(r["raw_contains90"] for r in infl), len(infl)))
+        L.append(frac_line("68 % region without the misfit's inflation",
+                           sum(r["raw_contains68"] for r in infl), len(infl)))
+        L.append(f"  light-curve dispersion (TS divided by): median {np.median(disp):.2f}, "
+                 f"> 1 in {int(np.sum(disp > 1))}/{disp.size}, > 1.5 in "
+                 f"{int(np.sum(disp > 1.5))}, max {disp.max():.2f}; median r90 / r90 "
+                 f"without it {np.median([r['r90'] / r['raw_r90'] for r in infl]):.3f}")
+        nu = np.array([p[3:5] for r in infl if r.get("pulse_family") == "peaked"
+                       for p in r["pulses"]])
+        if nu.size:
+            L.append(f"  fitted peakedness of {len(nu)} pulses: nu_rise median "
+                     f"{np.median(nu[:, 0]):.2f} (10-90 % {np.percentile(nu[:, 0], 10):.2f}-"
+                     f"{np.percentile(nu[:, 0], 90):.2f}), nu_decay median "
+                     f"{np.median(nu[:, 1]):.2f} ({np.percentile(nu[:, 1], 10):.2f}-"
+                     f"{np.percentile(nu[:, 1], 90):.2f})")
+    old = data.get("compare")
+    if old:
+        both = [(r, old[str(r["index"])]) for r in ok if str(r["index"]) in old]
+        L.append(f"  the same draws in the compared run ({len(both)} analysed in both):")
+        L.append(frac_line("    90 %, this run", sum(r["contains90"] for r, _ in both),
+                           len(both)))
+        L.append(frac_line("    90 %, compared run", sum(o["contains90"] for _, o in both),
+                           len(both)))
+        for r, o in both:
+            if r["contains90"] != o["contains90"]:
+                L.append(f"    #{r['index']}: now {'in' if r['contains90'] else 'OUT'} "
+                         f"(sqrtTS {r['sqrt_ts']:.1f}, sep/r90 "
+                         f"{r['separation'] / r['r90']:.2f}), before "
+                         f"{'in' if o['contains90'] else 'OUT'} (sqrtTS {o['sqrt_ts']:.1f}, "
+                         f"sep/r90 {o['separation'] / o['r90']:.2f})")
     L.append("  by sqrt(TS) (all analysed):")
     for lo, hi in ((0, 12), (12, 20), (20, 35), (35, 1e9)):
         sel = [r for r in ok if lo <= r["sqrt_ts"] < hi]
@@ -334,7 +384,7 @@ def report(data: dict) -> str:
         L.append(f"    #{r['index']}: theta {t['theta']:.1f} phi {t['phi']:.1f} sqrtTS "
                  f"{r['sqrt_ts']:.1f}, best {r['separation']:.2f} deg off, alternative "
                  f"{near:.2f} deg off")
-    fails = [r for r in clean if not r["contains90"]]
+    fails = [r for r in ok if not r["contains90"]]
     fringe = math.degrees(inst.mask.period / inst.mask.height)  # p cos^2(theta) / L at 0
     for r in fails:
         t = r["truth"]
@@ -343,7 +393,9 @@ def report(data: dict) -> str:
                  f"sep {r['separation']:.2f} r90 {r['r90']:.2f} sep/r90 "
                  f"{r['separation'] / r['r90']:.1f} sep/fringe "
                  f"{r['separation'] / (fringe * math.cos(math.radians(t['theta'])) ** 2):.2f} "
-                 f"dTS(best-truth) {r.get('dts_truth', float('nan')):+.1f}")
+                 f"dTS(best-truth) {r.get('dts_truth', float('nan')):+.1f} dispersion "
+                 f"{r.get('dispersion', float('nan')):.2f}"
+                 + (" (mirror won)" if r["mirror_won"] else ""))
     dd = [r for r in ok if "dts_truth" in r]
     if dd:
         L.append(f"  TS of the best fit minus TS at the truth (fine fit's bins; 2-D Wilks: "
@@ -495,6 +547,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--shape", choices=("norris", "gauss-exp"), default="norris",
                    help="the injected pulses' shape (default norris, the model's family)")
     p.add_argument("--resume", action="store_true", help="skip the bursts in --out")
+    p.add_argument("--only", default=None,
+                   help="comma-separated draw indices (< --n): run only these (e.g. the "
+                        "misses of an earlier run; not a coverage sample)")
     p.add_argument("--shard", default="0/1",
                    help="K/N: only the bursts i with i %% N == K (run N processes, one core "
                         "each, into separate --out files; --report merges them)")
@@ -503,6 +558,9 @@ def main(argv: list[str] | None = None) -> None:
                         "another one runs forward; --report keeps one record per burst)")
     p.add_argument("--report", nargs="*", type=Path, default=None,
                    help="only print the report of --out and of these other JSON files")
+    p.add_argument("--compare", nargs="*", type=Path, default=None,
+                   help="with --report: JSON files of an earlier run of the same draws, "
+                        "compared burst by burst")
     args = p.parse_args(argv)
     global SHAPE
     SHAPE = args.shape
@@ -514,6 +572,10 @@ def main(argv: list[str] | None = None) -> None:
             data["bursts"] += json.loads(extra.read_text())["bursts"]
         data["bursts"] = sorted({r["index"]: r for r in data["bursts"]}.values(),
                                 key=lambda r: r["index"])
+        if args.compare:
+            data["compare"] = {str(r["index"]): r for f in args.compare
+                               for r in json.loads(f.read_text())["bursts"]
+                               if r.get("detected") and "error" not in r}
         text = report(data)
         print(text)
         txt.write_text(text + "\n")
@@ -542,8 +604,11 @@ def main(argv: list[str] | None = None) -> None:
 
         import rotmod.bursts.analysis
         import rotmod.bursts.localisation
+        import rotmod.bursts.posterior
+        import rotmod.bursts.pulses
         src = {m.__name__: hashlib.md5(Path(m.__file__).read_bytes()).hexdigest()[:12]
-               for m in (rotmod.bursts.analysis, rotmod.bursts.localisation)}
+               for m in (rotmod.bursts.analysis, rotmod.bursts.localisation,
+                         rotmod.bursts.posterior, rotmod.bursts.pulses)}
         data = {"config": {"n": args.n, "src_md5": src, "started": time.strftime(
                                "%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "seed": args.seed,
                            "no_lc_subset": args.no_lc_subset, "shape": args.shape,
@@ -556,8 +621,9 @@ def main(argv: list[str] | None = None) -> None:
     done = {r["index"] for r in data["bursts"]}
     n_nolc = sum(1 for r in data["bursts"] if "nolc" in r)
     cache: dict = {}
+    only = None if args.only is None else {int(v) for v in args.only.split(",")}
     for i in (range(args.n - 1, -1, -1) if args.reverse else range(args.n)):
-        if i in done or i % n_shards != shard:
+        if i in done or i % n_shards != shard or (only is not None and i not in only):
             continue
         t0 = time.perf_counter()
         cold = not cache

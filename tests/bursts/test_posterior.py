@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from astropy.coordinates import SkyCoord
 
-from rotmod.bursts.posterior import Posterior
+from rotmod.bursts.posterior import Posterior, tempered
 from rotmod.errors import ParameterError
 from rotmod.sources.localisation import Region
 from rotmod.sources.model import PointSource
@@ -94,3 +94,31 @@ def test_a_posterior_refuses_what_it_cannot_hold() -> None:
         post.level(1.5)
     with pytest.raises(ParameterError, match="one SkyCoord"):
         post.contains("here")
+
+
+def test_tempering_widens_a_gaussian_by_the_root_of_the_factor() -> None:
+    # A Gaussian surface exp(TS / 2) of width sigma, its TS divided by f, is a Gaussian of
+    # width sigma sqrt(f): the 90 % radius sigma sqrt(2 ln 10) grows by sqrt(f), to the
+    # 41-point grid's resolution (0.225 sigma, so 5 %; the square spans 4.5 sigma, which
+    # holds the 90 % region up to f = 3: 2.15 sqrt 3 = 3.7 sigma).  The growth is monotone
+    # in f, f = 1 changes nothing, and 1 / f undoes f.  Modes' weights are tempered too:
+    # B / A = exp(-(TS_A - TS_B) / (2 f)) (1.0 / 0.5)^2.
+    base = square(A, SIGMA_A, TS_A)
+    r0 = base.radius(0.9)
+    assert r0 == pytest.approx(SIGMA_A * np.sqrt(2.0 * np.log(10.0)), rel=0.05)
+    radii = [tempered(base, f).radius(0.9) for f in (1.0, 1.3, 1.7, 2.2, 3.0)]
+    assert np.all(np.diff(radii) > 0)
+    for f, r in zip((1.3, 1.7, 2.2, 3.0), radii[1:], strict=True):
+        assert r / r0 == pytest.approx(np.sqrt(f), rel=0.05)
+    assert tempered(base, 1.0) is base
+    back = tempered(tempered(base, 2.0), 0.5)
+    np.testing.assert_allclose(back.density, base.density, rtol=1e-10, atol=1e-300)
+    np.testing.assert_allclose(back.ts, base.ts, rtol=1e-12)
+    f = 2.0
+    post = Posterior((tempered(base, f), tempered(square(B, SIGMA_B, TS_B), f)))
+    p_a, p_b = post.square_probability
+    # The surfaces are truncated at 4.5 / sqrt(2) sigma of the tempered width (mass beyond
+    # exp(-5) = 0.7 %, a little more from B's wider tails).
+    assert p_b / p_a == pytest.approx(np.exp(-2.0 / f) * 4.0, rel=0.02)
+    with pytest.raises(ParameterError, match="factor must be"):
+        tempered(base, 0.0)

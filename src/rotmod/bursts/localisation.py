@@ -5,7 +5,7 @@ bins (:func:`bin_events`); the model of bin ``k`` of detector ``d`` is
 
     mu[d, k] = E_k (F w_k P_j(k)[d, t(k), n] + beta_d B_d(t_k)),
 
-with ``E_k`` the bin's good time, ``w_k`` the burst's light curve (Norris pulses fitted to
+with ``E_k`` the bin's good time, ``w_k`` the burst's light curve (pulses fitted to
 the detector-summed counts where the Bayesian blocks of :mod:`rotmod.bursts.measure` put
 the burst, :mod:`rotmod.bursts.pulses`), ``P_j`` the folded response of the
 attitude segment ``j`` the bin falls in, ``B_d`` the background rate fitted outside the
@@ -24,7 +24,8 @@ burst is fitted with the burst, as in the source fits).  The response is an
    kept and the others are reported as alternatives;
 3. **region**: :func:`rotmod.sources.localise` -- the likelihood surface around the best
    and every other mode within :data:`MODE_DTS`, each weighted by its probability
-   (:class:`~rotmod.bursts.posterior.Posterior`), with a settable systematic term, 68 %
+   (:class:`~rotmod.bursts.posterior.Posterior`), every TS divided by the dispersion of the
+   light curve's misfit (:func:`pulse_misfit`), with a settable systematic term, 68 %
    and 90 % contours and a HEALPix probability map.
 
 ``docs/bursts.md`` derives the bin widths and says why each stage is there.
@@ -45,8 +46,8 @@ from astropy.coordinates import SkyCoord
 from rotmod._validate import as_angle_scalar, as_int
 from rotmod.binning import TimeBinning
 from rotmod.bursts.measure import Background, BurstLightCurve
-from rotmod.bursts.posterior import Posterior
-from rotmod.bursts.pulses import PulseLightCurve, fit_pulses
+from rotmod.bursts.posterior import Posterior, tempered
+from rotmod.bursts.pulses import PulseLightCurve, fit_pulses, inflation, misfit
 from rotmod.conventions import source_direction
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
@@ -67,7 +68,7 @@ from rotmod.sources.localisation import Region, localise
 from rotmod.sources.model import PointSource, SkyModel, positions_of
 
 __all__ = ["BurstCounts", "BurstPosition", "ScoreMap", "bin_events", "burst_pulses",
-           "burst_response", "localise_burst", "search_map"]
+           "burst_response", "localise_burst", "pulse_misfit", "search_map"]
 
 #: Attitude segments of at most this many seconds (a balloon's pointing moves by well under
 #: the instrument's scale in that time; a fast slew can pass a shorter step).
@@ -341,8 +342,8 @@ class BurstPosition:
     theta, phi : float
         The same in the instrument frame at the trigger's attitude (deg).
     region : Region
-        The likelihood surface with the systematic term: 68 % and 90 % contours, radii,
-        areas, the probability map.
+        The likelihood surface with the systematic term, its TS divided by
+        :attr:`dispersion`: 68 % and 90 % contours, radii, areas, the probability map.
     fit : FitResult
         The fitted model (burst flux, background levels) with the burst's TS and flux
         errors.
@@ -360,6 +361,15 @@ class BurstPosition:
         The position's probability: the surfaces of the best position and of every other
         refitted mode within :data:`MODE_DTS` (nothing outside their squares).
         :meth:`contains` and :meth:`probability_map` use it.
+    pulses : PulseLightCurve or None
+        The light curve of the fit, seen from the best position (``None`` without pulses).
+    misfit : (float, int) or None
+        Pearson's ``chi^2`` and degrees of freedom of :attr:`pulses` over the burst
+        (:func:`pulse_misfit`); ``None`` without pulses or with ``inflate=False``.
+    dispersion : float
+        The factor the regions' TS surfaces (``region.ts``, every square of
+        :attr:`posterior`) were divided by: :func:`rotmod.bursts.pulses.inflation` of
+        :attr:`misfit`, 1 without it.
     """
 
     position: SkyCoord
@@ -372,6 +382,9 @@ class BurstPosition:
     counts: BurstCounts
     alternatives: tuple[tuple[SkyCoord, float], ...] = ()
     posterior: Posterior | None = None
+    pulses: PulseLightCurve | None = None
+    misfit: tuple[float, int] | None = None
+    dispersion: float = 1.0
 
     @property
     def ts(self) -> float:
@@ -413,12 +426,26 @@ def _peaks(theta: np.ndarray, phi: np.ndarray, values: np.ndarray, apart: float,
     return np.array(picked, dtype=np.int64)
 
 
+def _summed(counts: BurstCounts, background: Background, unit: UnfoldedResponse | None,
+            source: PointSource | None) -> tuple[np.ndarray, ...]:
+    """The detector-summed counts of ``counts`` as :func:`fit_pulses` takes them: edges,
+    counts, background counts, good time and the summed rate of a unit flux at ``source``
+    (``None`` without one)."""
+    rates = _background_rates(background, counts)
+    e = counts.exposure
+    r = None
+    if unit is not None and source is not None:
+        r = columns_at(unit, positions_of([source]))[:, :, 0].sum(axis=0)
+    return counts.edges, counts.counts.sum(axis=0), (rates * e).sum(axis=0), e, r
+
+
 def burst_pulses(light_curve: BurstLightCurve, counts: BurstCounts, background: Background,
                  unit: UnfoldedResponse | None = None, source: PointSource | None = None,
                  start: PulseLightCurve | None = None) -> PulseLightCurve:
-    """The burst's light curve in the bins of ``counts``: Norris pulses fitted to the
-    detector-summed counts (:func:`rotmod.bursts.pulses.fit_pulses`), seen from ``source``
-    through ``unit`` (weight 1) when given, refined from ``start`` when given.
+    """The burst's light curve in the bins of ``counts``: pulses fitted to the
+    detector-summed counts (:func:`rotmod.bursts.pulses.fit_pulses`, its default family),
+    seen from ``source`` through ``unit`` (weight 1) when given, refined from ``start``
+    when given.
 
     Seen from a position, the summed rate of a unit flux there (the response summed over
     the detectors) carries the mask's modulation of the summed transmission -- its rms is
@@ -427,13 +454,18 @@ def burst_pulses(light_curve: BurstLightCurve, counts: BurstCounts, background: 
     (measured with the blocks' net rates as the light curve: a burst of sqrt(TS) 136
     placed 68 deg away).
     """
-    rates = _background_rates(background, counts)
-    e = counts.exposure
-    r = None
-    if unit is not None and source is not None:
-        r = columns_at(unit, positions_of([source]))[:, :, 0].sum(axis=0)
-    return fit_pulses(counts.edges, counts.counts.sum(axis=0), (rates * e).sum(axis=0), e,
-                      light_curve, r, start)
+    edges, y, b, e, r = _summed(counts, background, unit, source)
+    return fit_pulses(edges, y, b, e, light_curve, r, start)
+
+
+def pulse_misfit(light_curve: BurstLightCurve, counts: BurstCounts, background: Background,
+                 pulses: PulseLightCurve, unit: UnfoldedResponse | None = None,
+                 source: PointSource | None = None) -> tuple[float, int]:
+    """Pearson's ``chi^2`` and degrees of freedom of ``pulses`` (fitted by
+    :func:`burst_pulses` with the same arguments) over the burst's extent
+    (``light_curve.interval``): :func:`rotmod.bursts.pulses.misfit`."""
+    edges, y, b, e, r = _summed(counts, background, unit, source)
+    return misfit(edges, y, b, e, pulses, light_curve.interval, r)
 
 
 def periods_per_turn(instrument: Any, theta_deg: float) -> float:
@@ -487,6 +519,7 @@ def localise_burst(
     time_bins: TimeBinning | None = None,
     n_refine: int = FINE_FITS,
     systematic: Any = 0.0,
+    inflate: bool = True,
     progress: ProgressArg = None,
     cache: dict[Any, ResponseOperator] | None = None,
 ) -> BurstPosition:
@@ -502,8 +535,8 @@ def localise_burst(
         its rate in each bin is the template whose level per detector is fitted with the
         burst.
     light_curve : BurstLightCurve or callable, optional
-        The burst's Bayesian blocks (:func:`rotmod.bursts.burst_light_curve`): Norris
-        pulses are fitted to the summed counts there (:func:`burst_pulses`), as seen from
+        The burst's Bayesian blocks (:func:`rotmod.bursts.burst_light_curve`): pulses
+        are fitted to the summed counts there (:func:`burst_pulses`), as seen from
         each candidate position, and weight the response bin by bin.  Or any function of
         the bins' edges giving their weights; ``None``: a constant source over the window.
     energy : float or Quantity
@@ -528,6 +561,10 @@ def localise_burst(
         least (others within reach of a mode too, up to :data:`MAX_CLIMBS`), >= 1.
     systematic : float or Quantity
         Systematic error per axis added to the region (deg if plain), >= 0.
+    inflate : bool
+        With pulses, divide the regions' TS by the dispersion of the pulses' misfit at the
+        best position (:func:`pulse_misfit`, :func:`rotmod.bursts.pulses.inflation`;
+        ``False``: the likelihood's own regions).
     progress : bool or callable, optional
         Progress over each map's pixels.
     cache : dict, optional
@@ -594,17 +631,20 @@ def localise_burst(
     coords = score.grid.sky_coords()[peaks]
 
     def seen_from(src: PointSource, c: BurstCounts, u_c: UnfoldedResponse,
-                  d_c: PoissonData) -> SourceFitter:
-        """The fitter of a source at ``src``, its light curve seen from there (a given
-        light curve is the same from everywhere: the search's fitter and its columns are
+                  d_c: PoissonData, start: PulseLightCurve | None = None
+                  ) -> tuple[SourceFitter, PulseLightCurve | None]:
+        """The fitter of a source at ``src``, its light curve seen from there (refined
+        from ``start``, default the search's pulses), and those pulses (a given light
+        curve is the same from everywhere: the search's fitter and its columns are
         shared)."""
         if pulses is None:
             return (null_fitter if c is counts
-                    else SourceFitter(u_c.with_weight(weights(c)), d_c))
-        w = burst_pulses(light_curve, c, background, u_c, src, pulses).shape(c.edges)
-        return SourceFitter(u_c.with_weight(w), d_c)
+                    else SourceFitter(u_c.with_weight(weights(c)), d_c)), None
+        lc = burst_pulses(light_curve, c, background, u_c, src,
+                          pulses if start is None else start)
+        return SourceFitter(u_c.with_weight(lc.shape(c.edges)), d_c), lc
 
-    peak_ll = np.array([seen_from(PointSource(c), counts, unit, data).maximise(
+    peak_ll = np.array([seen_from(PointSource(c), counts, unit, data)[0].maximise(
         SkyModel((PointSource(c),)))[1].loglike for c in coords])
     # Climb the n_refine most likely, and any other within reach of being a mode of the
     # region (a pixel centre is below its peak by up to the pixel's own loss).
@@ -618,32 +658,49 @@ def localise_burst(
     fine, fine_unit, fine_data = ((counts, unit, data) if fine_bins == search_bins
                                   else binned(fine_bins))
 
-    def climb(src: PointSource) -> tuple[SkyModel, float, SourceFitter]:
-        """Nelder-Mead from ``src``, with the light curve seen from there."""
-        f = seen_from(src, fine, fine_unit, fine_data)
+    def climb(src: PointSource
+              ) -> tuple[SkyModel, float, SourceFitter, PulseLightCurve | None]:
+        """Nelder-Mead from ``src``, with the light curve seen from there; then, with
+        pulses, the light curve seen from where the climb ended and a second climb (the
+        pulses held during a climb are those of its start, a pixel or more away)."""
+        f, lc = seen_from(src, fine, fine_unit, fine_data)
         m = f.maximise(SkyModel((dataclasses.replace(src, free_position=True),)))[0]
         m = f.fit_positions(m, scale=0.5 * pixel, precision=CLIMB_PRECISION)
-        return m, f.maximise(m)[1].loglike, f
+        if lc is not None:
+            f, lc = seen_from(m.sources[0], fine, fine_unit, fine_data, lc)
+            m = f.fit_positions(f.maximise(m)[0], scale=0.5 * pixel,
+                                precision=CLIMB_PRECISION)
+        return m, f.maximise(m)[1].loglike, f, lc
 
     fits = sorted((climb(PointSource(p)) for p in starts), key=lambda fit: -fit[1])
     # Distinct modes (climbs that met on one peak are one mode), best first.
-    distinct: list[tuple[SkyModel, float, SourceFitter]] = []
+    distinct: list[tuple[SkyModel, float, SourceFitter, PulseLightCurve | None]] = []
     for fit in fits:
         if all(fit[0].sources[0].separation(d[0].sources[0]) > np.degrees(1.5 * pixel)
                for d in distinct):
             distinct.append(fit)
-    best, best_ll, fitter = distinct[0]
+    best, best_ll, fitter, best_lc = distinct[0]
     result = fit_with(fitter, best, errors=True)
     # Other modes (e.g. the mirror image through the axis of a symmetric array): their TS
     # below the best.
-    others = tuple((m.sources[0].position, 2.0 * (best_ll - ll)) for m, ll, _ in distinct[1:])
+    others = tuple((m.sources[0].position, 2.0 * (best_ll - ll))
+                   for m, ll, _, _ in distinct[1:])
     # 3. The region: the likelihood surface around each mode within MODE_DTS of the best,
-    # weighted by its probability (its peak likelihood times its surface's integral).
-    region = localise(fitter, result.model, 0, systematic=systematic, n_side=BEST_SIDE)
-    regions = [region] + [localise(f, m, 0, systematic=systematic, n_side=MODE_SIDE)
-                          for m, ll, f in distinct[1:] if 2.0 * (best_ll - ll) <= MODE_DTS]
+    # weighted by its probability (its peak likelihood times its surface's integral), every
+    # TS divided by the dispersion of the light curve's misfit at the best position (1
+    # when the pulses fit the summed counts; the misfit is read as modulation).
+    misfit_stat = (None if best_lc is None or not inflate else
+                   pulse_misfit(light_curve, fine, background, best_lc,
+                                fine_unit, result.model.sources[0]))
+    factor = 1.0 if misfit_stat is None else inflation(*misfit_stat)
+    region = tempered(localise(fitter, result.model, 0, systematic=systematic,
+                               n_side=BEST_SIDE), factor)
+    regions = [region] + [tempered(localise(f, m, 0, systematic=systematic, n_side=MODE_SIDE),
+                                   factor)
+                          for m, ll, f, _ in distinct[1:] if 2.0 * (best_ll - ll) <= MODE_DTS]
     posterior = Posterior(tuple(regions))
     pos = result.model.sources[0].position
     th, ph = first.to_instrument(pos)
     return BurstPosition(pos, float(th.to_value(u.deg)), float(ph.to_value(u.deg)), region,
-                         result, score, fitter.response, fine, others, posterior)
+                         result, score, fitter.response, fine, others, posterior, best_lc,
+                         misfit_stat, factor)

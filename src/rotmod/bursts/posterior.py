@@ -24,13 +24,14 @@ from typing import Any
 
 import numpy as np
 from astropy.coordinates import SkyCoord
+from scipy.ndimage import gaussian_filter
 
 from rotmod.errors import ParameterError
 from rotmod.io.regions import HealpixProbability
 from rotmod.sources.catalogue import probability_map
 from rotmod.sources.localisation import Region
 
-__all__ = ["Posterior"]
+__all__ = ["Posterior", "tempered"]
 
 
 def _covers(region: Region, positions: SkyCoord) -> np.ndarray:
@@ -38,6 +39,29 @@ def _covers(region: Region, positions: SkyCoord) -> np.ndarray:
     x, y = region.tangent(positions)
     half = float(region.offsets[-1]) * (1.0 + 1e-9)  # its own edge points, to rounding
     return (np.abs(x) <= half) & (np.abs(y) <= half)
+
+
+def tempered(region: Region, factor: float) -> Region:
+    """``region`` with its TS surface divided by ``factor`` (> 0), its density drawn again.
+
+    A quasi-likelihood: where the model's residuals are ``factor`` times as dispersed as
+    Poisson counts (the light curve's misfit, :func:`rotmod.bursts.pulses.inflation`), every
+    ``delta ln L`` is ``factor`` times too large, so the surface ``exp(TS / (2 factor))``
+    is the position's probability.  A Gaussian surface's radii grow by ``sqrt(factor)``;
+    the systematic term is folded in as :func:`rotmod.sources.localise` does.  ``factor``
+    1 returns ``region`` itself; ``tempered(tempered(r, f), 1 / f)`` is ``r``.
+    """
+    if not (np.isfinite(factor) and factor > 0):
+        raise ParameterError(f"factor must be finite and > 0, got {factor!r}")
+    if factor == 1.0:
+        return region
+    ts = region.ts / factor
+    density = np.exp(0.5 * (ts - ts.max()))
+    if region.systematic > 0:
+        step = float(region.offsets[1] - region.offsets[0])
+        density = gaussian_filter(density, np.radians(region.systematic) / step,
+                                  mode="constant")
+    return dataclasses.replace(region, density=density / density.sum(), ts=ts, levels={})
 
 
 @dataclass(frozen=True, eq=False)

@@ -37,7 +37,7 @@ from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.io import write_events
 from rotmod.io.catalogue import read_catalogue
 from rotmod.io.ogip import ogip_paths, read_ogip, write_ogip
-from rotmod.limits import MemoryBudgetError
+from rotmod.limits import MemoryBudgetError, TimeBudgetError
 from rotmod.montecarlo import simulate_observation
 from rotmod.sky import Attitude
 from rotmod.sources import PointSource, SkyModel
@@ -373,32 +373,35 @@ def test_burst_search_refuses(burst_events, kwargs, match) -> None:
         search(ev, **kwargs)
 
 
-@pytest.mark.xfail(strict=True, raises=(MemoryError, TimeoutError),
-                   reason="rotmod/bursts/search.py: the fine bins (timescale/4) are not "
-                   "counted before allocation (1e-12 s over 120 s: 4.8e14 bins)")
 def test_burst_search_refuses_a_timescale_too_fine(burst_events) -> None:
+    # 1e-12 s over 120 s: 4.8e14 fine bins (a quarter of the timescale), refused unmade.
     _, ev = burst_events
-    with _within(10), pytest.raises(ParameterError, match="timescales"):
+    with _within(10), pytest.raises(MemoryBudgetError, match="shortest of timescales"):
         search(ev, timescales=[1e-12])
 
 
-@pytest.mark.xfail(strict=True, raises=(MemoryError, TimeoutError),
-                   reason="rotmod/bursts/measure.py fit_background: bins of bin_width are not "
-                   "counted before allocation (as _grid's MAX_BINS does for the light curve)")
 def test_fit_background_refuses_a_bin_too_fine(burst_events) -> None:
     _, ev = burst_events
-    with _within(10), pytest.raises(ParameterError, match="bin_width"):
+    with _within(10), pytest.raises(MemoryBudgetError, match="bin_width"):
         fit_background(ev, [(0.0, 40.0)], bin_width=1e-12)
 
 
-@pytest.mark.xfail(strict=True, raises=TimeoutError,
-                   reason="rotmod/bursts/measure.py durations: n_boot has no bound (1e12 "
-                   "bootstrap draws run for days, no estimate)")
 def test_durations_refuse_endless_bootstrap(burst_events) -> None:
     _, ev = burst_events
     bkg = fit_background(ev, [(0.0, 40.0), (80.0, 120.0)])
-    with _within(5), pytest.raises(ParameterError, match="n_boot"):
-        durations(ev, (40.0, 70.0), bkg, n_boot=10**12)
+    with _within(5), pytest.raises(MemoryBudgetError, match="n_boot"):
+        durations(ev, (40.0, 70.0), bkg, n_boot=10**12)  # its values alone: 48 TB
+
+
+def test_durations_estimate_a_long_bootstrap_from_its_first_chunk(burst_events,
+                                                                  monkeypatch) -> None:
+    # Within the memory budget but beyond the time budget (1 s here): refused after the
+    # first chunk's redraws, with the estimate.
+    _, ev = burst_events
+    bkg = fit_background(ev, [(0.0, 40.0), (80.0, 120.0)])
+    monkeypatch.setenv("ROTMOD_TIME_BUDGET", "1s")
+    with _within(10), pytest.raises(TimeBudgetError, match="n_boot = 10000000 bootstrap"):
+        durations(ev, (40.0, 70.0), bkg, n_boot=10**7)
 
 
 # -- OGIP products --------------------------------------------------------------------------

@@ -25,6 +25,7 @@ fitted on any intervals, clipped to the good time.
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -37,6 +38,7 @@ from rotmod._validate import as_array, as_int, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.events.eventlist import EventList
 from rotmod.events.gti import join_touching
+from rotmod.limits import check_memory, check_time
 
 __all__ = [
     "Background",
@@ -375,6 +377,12 @@ def fit_background(events: EventList, intervals: Any, *, degree: int = 1,
         raise ParameterError(f"intervals must overlap the good time of the events "
                              f"({events.t_start:g} to {events.t_stop:g} s), got "
                              f"[{iv[0, 0]:g}, {iv[-1, 1]:g}] s")
+    n_bins = float(np.sum(np.maximum(1.0, np.ceil((pieces[:, 1] - pieces[:, 0]) / width
+                                                  - 1e-9))))
+    # Bin edges, their design rows and the counts per detector: a few values per bin.
+    check_memory(8.0 * n_bins * (len(events.instrument.detectors) + 2 * degree + 8),
+                 f"{n_bins:.3g} background bins of bin_width = {width:g} s", hint="a larger "
+                 "bin_width")
     lo, hi = [], []
     for p0, p1 in pieces:
         n = max(1, int(np.ceil((p1 - p0) / width - 1e-9)))
@@ -825,15 +833,24 @@ def durations(events: EventList, window: Any, background: Background, *,
     else:
         top = np.max(np.where(light_curve.burst, light_curve.net_rate, 0.0), initial=0.0)
         mean = np.maximum(bkg, 0.0) + top * light_curve.shape(grid) * np.diff(grid)
+    # Each redraw keeps one value per measurement: counted before the first, and the time of
+    # the rest estimated from the first chunk's.
+    check_memory(8.0 * n_boot * len(best), f"n_boot = {n_boot} bootstrap redraws",
+                 hint="a smaller n_boot")
     rng = np.random.default_rng(seed)
     chunk = max(1, _CHUNK_ELEMENTS // grid.size)
     draws: dict[str, list[np.ndarray]] = {key: [] for key in best}
+    t0 = time.perf_counter()
     for start in range(0, n_boot, chunk):
         size = min(chunk, n_boot - start)
         counts = rng.poisson(mean, size=(size, n))
         bkg_draws = background._summed_draws(grid, rng, size)
         for key, val in _measure(cumulative(counts - bkg_draws), grid, pre, post, k).items():
             draws[key].append(val)
+        if start == 0 and n_boot > size:
+            check_time(n_boot - size, size / max(time.perf_counter() - t0, 1e-9),
+                       f"n_boot = {n_boot} bootstrap redraws of the window's {n} bins",
+                       unit="redraws", hint="a smaller n_boot")
     err = {key: _std(np.concatenate(val)) for key, val in draws.items()}
     return Durations(
         best["t90"], err["t90"], best["t50"], err["t50"], best["t90_start"],

@@ -89,6 +89,7 @@ from rotmod.bursts.measure import _check_events
 from rotmod.errors import ParameterError
 from rotmod.events import EventList
 from rotmod.events.gti import join_touching
+from rotmod.limits import check_memory
 from rotmod.progress import ProgressArg, progress_callbacks
 
 if TYPE_CHECKING:
@@ -388,13 +389,20 @@ class _Plan:
 
 
 def _plan(events: EventList, ts: np.ndarray, background_window: Any, gap: Any,
-          delta: float) -> _Plan:
+          delta: float, n_bands: int) -> _Plan:
     b = as_scalar(background_window, "background_window", u.s, lo=0.0, lo_open=True)
     g = None if gap is None else as_scalar(gap, "gap", u.s, lo=0.0)
     width = np.maximum(np.rint(ts / delta), 1).astype(np.int64)
     gaps = np.maximum(ts, MIN_GAP) if g is None else np.full(ts.size, g)
     gti = join_touching(events.gti)
-    n_bins = np.floor((gti[:, 1] - gti[:, 0]) / delta * (1.0 + 1e-12)).astype(np.int64)
+    n_bins = np.floor((gti[:, 1] - gti[:, 0]) / delta * (1.0 + 1e-12))
+    # The fine bins' cumulative counts (per band) and the window starts of the finest scale
+    # are arrays of about one value per fine bin each: counted before any is made.
+    check_memory(8.0 * float(n_bins.max()) * (n_bands + 4),
+                 f"{n_bins.max():.3g} fine bins of {delta:.3g} s (a quarter of the shortest "
+                 f"of timescales) over the longest good-time interval, in {n_bands} band(s)",
+                 hint="a longer shortest timescale")
+    n_bins = n_bins.astype(np.int64)
     plan = _Plan(
         delta=delta, width=width, step=np.maximum(width // 2, 1),
         gap=np.rint(gaps / delta).astype(np.int64), n_bkg=max(round(b / delta), 1),
@@ -531,7 +539,7 @@ def window_tests(events: EventList, timescale: Any, *, band: Any = None,
     events = _check_events(events)
     ts = _check_timescales([as_scalar(timescale, "timescale", u.s, lo=0.0, lo_open=True)])
     (bnd,) = _check_bands(None if band is None else [band])
-    plan = _plan(events, ts, background_window, gap, ts[0] / 4.0)
+    plan = _plan(events, ts, background_window, gap, ts[0] / 4.0, 1)
     w, s, g, nb = int(plan.width[0]), int(plan.step[0]), int(plan.gap[0]), plan.n_bkg
     mask = _band_mask(events.energy, bnd)
     times, ons, offs = [], [], []
@@ -610,7 +618,7 @@ def search(
     ts = _check_timescales(timescales)
     band_list = _check_bands(bands)
     f = as_scalar(far, "far", 1 / u.s, lo=0.0, lo_open=True)
-    plan = _plan(events, ts, background_window, gap, ts[0] / 4.0)
+    plan = _plan(events, ts, background_window, gap, ts[0] / 4.0, len(band_list))
     used = plan.timescales
     trials = len(band_list) * float(np.sum(1.0 / (plan.step * plan.delta)))
     p_thr = f / trials

@@ -359,9 +359,10 @@ def _used_range(f: _Factors, sl: slice | np.ndarray) -> tuple[int, int]:
 
     The splat of an angle is zero outside ``[k_lo, k_hi)`` and the gather reads nothing
     outside it, so the restricted products equal the full ones to rounding.  A block's
-    angles are consecutive, so the union is hardly wider than each range; on the wide field
-    (a square field, its projection 0.71-1 of the table's ``w`` extent) it skips ~15 % of
-    the table (docs/response.md).
+    angles are consecutive, so the union is hardly wider than each range.  On the wide
+    field (a square, whose projection spans 0.71-1 of the table's ``w`` extent) a block uses
+    0.92 of the row: the stage is 10 % faster (docs/response.md); on a narrow or
+    off-centre field it skips most of the table.
     """
     lo, hi = f.k_lo[sl], f.k_hi[sl]
     if lo.size == 0:

@@ -116,6 +116,40 @@ def wide(tol: float, repeat: int) -> dict:
     return out
 
 
+def rows_probe(tol: float, n_blocks: int) -> dict:
+    """CPU seconds of the rows path's detector stages (forward + adjoint) on the wide field,
+    timed on ``n_blocks`` blocks and scaled to all: the rows kernels run on this table with
+    two taps (a row of the same length as the rows path's half-step linear table, and the
+    same two rows read per detector and angle; only the table's row count differs)."""
+    resp = RadonResponse(wide_instrument(), SkyGrid((1000, 1000), 0.1), TimeBinning(2000),
+                         662.0, tolerance=tol)
+    f = resp._factors
+    jx, ax = np.ascontiguousarray(f.jx[:, :, :2]), np.ascontiguousarray(f.ax[:, :, :2])
+    rng = np.random.default_rng(3)
+    t_f = t_a = 0.0
+    for i, (t0, t1) in enumerate(resp.blocks[:n_blocks + 1]):
+        sl = f.angles(t0, t1)
+        n_ang = sl.stop - sl.start
+        flat = rng.random((n_ang, f.table.shape[1]), dtype=np.float32)
+        ya = rng.random((resp.n_det, n_ang), dtype=np.float32)
+        out = np.empty((resp.n_det, n_ang), dtype=np.float32)
+        gg = np.zeros_like(flat)
+        args = (jx[:, sl], ax[:, sl])
+        c = time.process_time()
+        rmod._rows_forward(f.table, flat, *args, f.k_lo[sl], f.k_hi[sl], out)
+        t_f += time.process_time() - c
+        c = time.process_time()
+        rmod._rows_adjoint(f.table, ya, *args, f.k_lo[sl], f.k_hi[sl], gg)
+        t_a += time.process_time() - c
+        if i == 0:  # the first block is a warm-up (numba cache load), not timed
+            t_f = t_a = 0.0
+    scale = len(resp.blocks) / n_blocks
+    res = {"tolerance": tol, "blocks_timed": n_blocks, "blocks": len(resp.blocks),
+           "rows_fwd_cpu": t_f * scale, "rows_adj_cpu": t_a * scale, "load": load()}
+    print(res, flush=True)
+    return res
+
+
 def paper(repeat: int) -> dict:
     inst = load_instrument("prototype")
     grid = SkyGrid.paper()
@@ -171,7 +205,14 @@ def main() -> None:
     ap.add_argument("--tolerances", type=float, nargs="+", default=[1e-4, 1e-3])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--paper-repeat", type=int, default=9)
+    ap.add_argument("--rows-probe", type=int, default=0, metavar="N_BLOCKS",
+                    help="only time the rows path's detector stages at the first tolerance "
+                         "on N_BLOCKS blocks (results/bench_radon_default_tol_rows.json)")
     args = ap.parse_args()
+    if args.rows_probe:
+        res = rows_probe(args.tolerances[0], args.rows_probe)
+        OUT.with_name(OUT.name + "_rows.json").write_text(json.dumps(res, indent=1))
+        return
     res: dict = {"load_start": load(), "wide": []}
     res["paper"] = paper(args.paper_repeat)
     print(res["paper"], flush=True)

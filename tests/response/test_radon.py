@@ -123,6 +123,46 @@ def test_the_blas_detector_stage_is_as_accurate_and_blocks_do_not_matter(monkeyp
     dot_test(gemm, rng=np.random.default_rng(5), rtol=1e-12)  # the same x, y as above
 
 
+def test_the_blas_stage_restricted_to_the_used_range_equals_the_full_product(monkeypatch) -> None:
+    import rotmod.response.radon as radon_module
+
+    inst, grid, tb, energy = CASES["thick-wide"]  # off-centre: the used w range is narrow
+    monkeypatch.setattr(radon_module, "GEMM_ROWS", 10**6)  # the BLAS detector stage
+    gemm = RadonResponse(inst, grid, tb, energy, dtype=np.float64, block_bins=6)
+    f = gemm._factors
+    n_kr = f.table.shape[1]
+    assert f.gemm and len(gemm.blocks) > 1
+    # The premise, checked on the splat itself: nothing outside an angle's [k_lo, k_hi).
+    rng = np.random.default_rng(11)
+    x, y = rng.random(gemm.n_sky), rng.random((gemm.n_det, gemm.n_time))
+    v = np.ascontiguousarray(x[gemm._perm, None] * f.q_weights)
+    sl = f.angles(*gemm.blocks[1])
+    n_ang = sl.stop - sl.start
+    rr = np.zeros((n_ang, f.n_w, f.n_q))
+    radon_module._projection_kernels(f.n_q)[0](f.tx, f.ty, v, f.cos_a[sl], f.sin_a[sl],
+                                               f.k0, f.inv_dw, rr)
+    flat = rr.reshape(n_ang, -1)
+    k = np.arange(n_kr)
+    outside = (k < f.k_lo[sl, None]) | (k >= f.k_hi[sl, None])
+    assert np.all(flat[outside] == 0.0) and np.any(flat != 0.0)
+    lo, hi = radon_module._used_range(f, sl)
+    assert hi - lo < 0.6 * n_kr  # the restriction skips most of the table here
+    # Against the full BLAS product of every column (today's stage before the restriction),
+    # written out independently: equal to rounding (1e-12: BLAS sums in another order).
+    jx, ax = f.jx[:, sl], f.ax[:, sl]
+    z = flat @ f.table.T
+    full = np.sum(z[np.arange(n_ang)[None, :, None], jx] * ax, axis=2)
+    np.testing.assert_allclose(radon_module._detect(f, sl, flat), full, rtol=1e-12)
+    # The whole operator against one whose used range is every column.
+    wide = RadonResponse(inst, grid, tb, energy, dtype=np.float64, block_bins=6,
+                         table=f.table)
+    wide._factors = dataclasses.replace(f, k_lo=np.zeros_like(f.k_lo),
+                                        k_hi=np.full_like(f.k_hi, n_kr))
+    np.testing.assert_allclose(gemm.forward(x), wide.forward(x), rtol=1e-12)
+    np.testing.assert_allclose(gemm.adjoint(y), wide.adjoint(y), rtol=1e-12)
+    dot_test(gemm, rng=np.random.default_rng(12), rtol=1e-12)
+
+
 def test_detector_subset_and_metadata() -> None:
     inst, grid, tb, energy = CASES["prototype-662"]
     full = _radon("prototype-662")

@@ -353,6 +353,23 @@ def _forward_block(blk: tuple[int, int], f: _Factors, v: np.ndarray) -> np.ndarr
     return per_angle.reshape(-1, t1 - t0, f.n_sub).sum(axis=2, dtype=np.float64)
 
 
+def _used_range(f: _Factors, sl: slice | np.ndarray) -> tuple[int, int]:
+    """The union ``[lo, hi)`` of the used ranges of the flattened splat row over the angles
+    ``sl``: the BLAS detector stage multiplies only these columns of the table.
+
+    The splat of an angle is zero outside ``[k_lo, k_hi)`` and the gather reads nothing
+    outside it, so the restricted products equal the full ones to rounding.  A block's
+    angles are consecutive, so the union is hardly wider than each range.  On the wide
+    field (a square, whose projection spans 0.71-1 of the table's ``w`` extent) a block uses
+    0.92 of the row: the stage is 10 % faster (docs/response.md); on a narrow or
+    off-centre field it skips most of the table.
+    """
+    lo, hi = f.k_lo[sl], f.k_hi[sl]
+    if lo.size == 0:
+        return 0, 0
+    return int(lo.min()), int(hi.max())
+
+
 def _detect(f: _Factors, sl: slice | np.ndarray, flat: np.ndarray) -> np.ndarray:
     """The detector stage: rates ``(D, n_ang)`` of splatted angles ``flat (n_ang, K R)``
     whose detector rows are those of the angles ``sl`` (a slice or indices into
@@ -360,7 +377,8 @@ def _detect(f: _Factors, sl: slice | np.ndarray, flat: np.ndarray) -> np.ndarray
     n_ang = flat.shape[0]
     jx, ax = f.jx[:, sl], f.ax[:, sl]
     if f.gemm:
-        z = flat @ f.table.T  # (n_ang, J)
+        lo, hi = _used_range(f, sl)
+        z = flat[:, lo:hi] @ f.table[:, lo:hi].T  # (n_ang, J); the splat is 0 elsewhere
         return np.sum(z[np.arange(n_ang)[None, :, None], jx] * ax, axis=2)
     per_angle = np.empty((jx.shape[0], n_ang), dtype=f.table.dtype)
     _rows_forward(f.table, flat, jx, ax, f.k_lo[sl], f.k_hi[sl], per_angle)
@@ -376,7 +394,11 @@ def _detect_adjoint(f: _Factors, sl: slice | np.ndarray, ya: np.ndarray) -> np.n
         w = np.zeros((n_ang, f.table.shape[0]), dtype=f.table.dtype)
         rows = np.broadcast_to(np.arange(n_ang)[None, :, None], jx.shape)
         np.add.at(w, (rows, jx), ya[:, :, None] * ax)
-        return w @ f.table
+        # Only the used range: the gather reads nothing outside it.
+        lo, hi = _used_range(f, sl)
+        gg = np.zeros((n_ang, f.table.shape[1]), dtype=f.table.dtype)
+        np.matmul(w, f.table[:, lo:hi], out=gg[:, lo:hi])
+        return gg
     gg = np.zeros((n_ang, f.table.shape[1]), dtype=f.table.dtype)
     _rows_adjoint(f.table, ya, jx, ax, f.k_lo[sl], f.k_hi[sl], gg)
     return gg

@@ -110,6 +110,19 @@ def test_default_method_coarse_to_fine_puts_sources_on_their_pixels(case) -> Non
     assert res.extras["layers"].shape[-2:] == (16, 16)
 
 
+def test_an_empty_sky_is_solved_not_refused(case) -> None:
+    # Nothing significant at the coarse scale: the solve starts from the most significant
+    # coarse pixel (it crashed on an empty support), and the check finds nothing to add.
+    resp, _ = case
+    counts = np.random.default_rng(6).poisson(400.0 * (resp.forward(np.zeros(256)) + 1.0))
+    counts = counts.astype(float)
+    res = reconstruct(resp, counts, exposure=400.0, background=1.0, seed=1, coarse=4)
+    assert res.extras["support"].sum() == 16  # one coarse pixel of 4 x 4
+    assert res.extras["max_ts_outside"] <= 25.0
+    # Flux is a few counts' worth at most: background fluctuations, no source.
+    assert res.image.sum() * 400.0 < 3.0 * np.sqrt(counts.sum())
+
+
 def test_refinement_refusals(case) -> None:
     resp, counts = case
     with pytest.raises(ParameterError, match=r"coarse\.factor"):

@@ -245,6 +245,10 @@ def coarse_to_fine(
     keep = np.argsort(-cts, kind="stable")[: ref.max_pixels // ref.factor**2]
     cmask = np.zeros(cimg.size, dtype=bool)
     cmask[keep[cts[keep] > ref.ts_cut]] = True
+    if not cmask.any():
+        # Nothing significant at the coarse scale (an empty or faint sky): start from the
+        # most significant coarse pixel; the full-resolution check adds what the sky needs.
+        cmask[keep[0]] = True
     cmask = cmask.reshape(cimg.shape)
     support = _fine_pixels(cmask, ref.factor, shape)
     t_coarse = time.perf_counter() - t0

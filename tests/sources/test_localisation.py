@@ -6,9 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rotmod.bursts.posterior import tempered
 from rotmod.errors import ParameterError
 from rotmod.reconstruction import PoissonData
 from rotmod.sources import PointSource, SkyModel, SourceFitter, fit, localise
+from rotmod.sources.localisation import EDGE_DROP
 
 BKG = 2.0
 TRUTH = PointSource((3.3, 47.0), flux=0.08)
@@ -32,6 +34,20 @@ def test_regions_shrink_as_one_over_root_exposure(field):
         assert r4.radius(q) / r1.radius(q) == pytest.approx(0.5, rel=0.05)
     assert r1.contains(TRUTH.position, 0.68)
     assert r1.area(0.9) > r1.area(0.68)
+
+
+def test_a_square_sized_for_a_tempered_surface_holds_it(field):
+    # Asimov data: TS / 4 at 4x the exposure is the surface at 1x.  Sized for it
+    # (dispersion=4), the square holds the tempered surface as the 1x square holds its own:
+    # the edge falls by EDGE_DROP and the radii agree (5 %, as above).  Sized for the
+    # untempered surface, the tempered one would run past the edge (drop ~14 / 4).
+    r1 = _region(field, 2000.0)
+    r4 = tempered(_region(field, 8000.0, dispersion=4.0), 4.0)
+    drop = r4.ts.max() - r4.ts
+    edge = np.concatenate([drop[0], drop[-1], drop[:, 0], drop[:, -1]])
+    assert r4.closed and edge.min() >= EDGE_DROP
+    for q in (0.68, 0.9):
+        assert r4.radius(q) / r1.radius(q) == pytest.approx(1.0, rel=0.05)
 
 
 def test_a_dominant_systematic_gives_rayleigh_radii(field):
@@ -71,3 +87,5 @@ def test_bad_arguments_are_refused(field):
         localise(fitter, model, 0, systematic=-1.0)
     with pytest.raises(ParameterError, match="n_side"):
         localise(fitter, model, 0, n_side=10)
+    with pytest.raises(ParameterError, match="dispersion must be finite and >= 1"):
+        localise(fitter, model, 0, dispersion=0.5)

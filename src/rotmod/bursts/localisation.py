@@ -693,11 +693,14 @@ def localise_burst(
                    pulse_misfit(light_curve, fine, background, best_lc,
                                 fine_unit, result.model.sources[0]))
     factor = 1.0 if misfit_stat is None else inflation(*misfit_stat)
+    # Each square sized for the tempered surface (so its edge falls by EDGE_DROP too), and
+    # the modes kept by their tempered TS.
     region = tempered(localise(fitter, result.model, 0, systematic=systematic,
-                               n_side=BEST_SIDE), factor)
-    regions = [region] + [tempered(localise(f, m, 0, systematic=systematic, n_side=MODE_SIDE),
-                                   factor)
-                          for m, ll, f, _ in distinct[1:] if 2.0 * (best_ll - ll) <= MODE_DTS]
+                               n_side=BEST_SIDE, dispersion=factor), factor)
+    regions = [region] + [tempered(localise(f, m, 0, systematic=systematic, n_side=MODE_SIDE,
+                                            dispersion=factor), factor)
+                          for m, ll, f, _ in distinct[1:]
+                          if 2.0 * (best_ll - ll) <= MODE_DTS * factor]
     posterior = Posterior(tuple(regions))
     pos = result.model.sources[0].position
     th, ph = first.to_instrument(pos)

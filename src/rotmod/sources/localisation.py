@@ -224,6 +224,7 @@ def localise(
     *,
     systematic: Any = 0.0,
     n_side: int = N_SIDE,
+    dispersion: float = 1.0,
 ) -> Region:
     """The localisation region of source ``k`` of a fitted ``model``.
 
@@ -240,6 +241,11 @@ def localise(
         calibration's uncertainty, added to the statistical surface.
     n_side : int
         Points per side of the square (odd, >= 11).
+    dispersion : float
+        >= 1: the square is sized for the surface ``TS / dispersion`` (a surface that will be
+        tempered by it, :func:`rotmod.bursts.posterior.tempered`: the data's dispersion
+        beyond Poisson), so that this wider surface too falls by :data:`EDGE_DROP` at the
+        edge and ``closed`` says so.  The returned region holds the untempered surface.
 
     Returns
     -------
@@ -250,6 +256,8 @@ def localise(
     sys_rad = as_angle_scalar(systematic, "systematic", lo=0.0)
     if n_side < 11 or n_side % 2 == 0:
         raise ParameterError(f"n_side must be odd and >= 11, got {n_side}")
+    if not (np.isfinite(dispersion) and dispersion >= 1.0):
+        raise ParameterError(f"dispersion must be finite and >= 1, got {dispersion!r}")
     source = model.sources[k]
     # The others held at their fluxes in the full fit: refitted without source k, they would
     # absorb part of it through their sidelobes and move the surface's peak (measured: 0.1
@@ -259,11 +267,11 @@ def localise(
     null = model.replace(sources=others)
     ts_k = max(fitter.source_ts(model, k, fitter.maximise(model)[1].loglike), 1.0)
     # A Gaussian surface has sigma ~ scale / sqrt(TS): start at ~4 sigma, then adapt.
-    half = 4.0 * geometric_scale(fitter.response) / np.sqrt(ts_k) + 4.0 * sys_rad
+    half = 4.0 * geometric_scale(fitter.response) * np.sqrt(dispersion / ts_k) + 4.0 * sys_rad
     half = min(half, MAX_HALF)
     for _ in range(12):
         o, ts, _ = scan_square(fitter, null_state(fitter, null), source, half, n_side)
-        drop = ts.max() - ts
+        drop = (ts.max() - ts) / dispersion
         edge = np.concatenate([drop[0], drop[-1], drop[:, 0], drop[:, -1]])
         closed = bool(edge.min() >= EDGE_DROP)
         if not closed and half < MAX_HALF:

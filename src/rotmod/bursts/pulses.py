@@ -457,10 +457,12 @@ def misfit(edges: np.ndarray, counts: np.ndarray, background: np.ndarray,
     """Pearson's ``chi^2`` of the pulses' fit over the burst, and its degrees of freedom.
 
     The bins of :func:`fit_pulses` (same arguments) whose centres lie in ``interval`` are
-    grouped in time order until each group expects at least ``min_counts`` counts (the last
-    remainder joins the group before), so that each group's ``(y - mu)^2 / mu`` is a
-    ``chi^2_1`` to a few per cent; the degrees of freedom are the groups less the fit's
-    parameters (at least 1).
+    grouped in time order by the multiple of ``min_counts`` their cumulative expected counts
+    have reached, so that a group expects about ``min_counts`` counts (a bin that crosses a
+    multiple starts the next group; a bin expecting more is a group of its own; the remainder
+    at the end joins the last group), and each group's ``(y - mu)^2 / mu`` is a ``chi^2_1``
+    to a few per cent; the degrees of freedom are the groups less the fit's parameters (at
+    least 1).
 
     Returns
     -------
@@ -474,8 +476,7 @@ def misfit(edges: np.ndarray, counts: np.ndarray, background: np.ndarray,
           + np.asarray(exposure, dtype=float) * r * pulses.rate(t))
     sel = (t >= interval[0]) & (t < interval[1])
     y, mu = np.asarray(counts, dtype=float)[sel], mu[sel]
-    # A group closes once its expected counts reach min_counts (a bin expecting more is a
-    # group of its own); the remainder at the end joins the last group.
+    # Groups by the multiple of min_counts the cumulative expected counts have reached.
     cum = np.cumsum(mu)
     full = int(np.floor(cum[-1] / min_counts)) if cum.size else 0
     if full < 1:

@@ -14,6 +14,7 @@ from rotmod.bursts import (
     analysis,
     durations,
     fit_background,
+    localise_burst,
     norris_pulse,
     search,
     simulate_burst,
@@ -30,7 +31,7 @@ from rotmod.errors import ParameterError
 from rotmod.events import EventList
 from rotmod.geometry import DetectorArray, Instrument, Mask
 from rotmod.montecarlo import simulate_observation
-from rotmod.sky import Attitude, PointSources
+from rotmod.sky import Attitude, AttitudeTable, PointSources
 from rotmod.sky.points import DirectionList, PositionList
 from rotmod.sources.fitting import SourceFitter
 from rotmod.sources.model import SkyModel
@@ -210,3 +211,44 @@ def test_durations_window_reaches_twice_the_burst_or_falls_back_to_the_fit_windo
     *_, dur2, dur_window2 = analysis._measurements(ev, 50.0, 55.0, 1)
     assert calls == [dur_window, window] and dur_window2 == window
     assert dur2 == durations(ev, window, bkg, light_curve=lc)
+
+
+def _held(t_start: float, t_stop: float) -> AttitudeTable:
+    """A table of the fixed attitude ATT sampled at ``t_start`` and ``t_stop``."""
+    return AttitudeTable([t_start, t_stop], [ATT.ra] * 2, [ATT.dec] * 2, [ATT.roll] * 2)
+
+
+def test_a_table_covering_the_good_time_serves_windows_at_the_data_end(burst_events):
+    # Data ending at 119.9 s, off the 0.25 s mask-angle bins: a window reaching the end is
+    # binned to 120 s, but the attitude is needed over good time only, which the table of
+    # exactly the data's span covers.  Independent evidence: a table holding ATT gives the
+    # counts and exposure of ATT itself, and every segment is ATT (to 1e-9 deg: slerp
+    # round-off).
+    _, ev = burst_events
+    cut = ev.within(0.0, 119.9)
+    assert cut.t_stop == 119.9
+    fixed = bin_events(cut, 100.0, 119.9, time_bins=8)
+    table = bin_events(cut, 100.0, 119.9, time_bins=8, attitude=_held(0.0, 119.9), max_step=6.0)
+    assert fixed.edges[-1] == 120.0 == table.edges[-1]
+    np.testing.assert_array_equal(table.counts, fixed.counts)
+    np.testing.assert_array_equal(table.exposure, fixed.exposure)
+    assert len(table.attitudes) == 4  # 100 .. 119.9 s in pieces of <= 6 s
+    for att in table.attitudes:
+        assert att.pointing.separation(ATT.pointing).deg < 1e-9
+        assert att.roll == pytest.approx(ATT.roll, abs=1e-9)
+    # A table that stops at 110 s: refused, naming the times and the table's span.
+    with pytest.raises(ParameterError, match=r"t_start \.\. t_stop: the attitude table covers "
+                                             r"0 \.\. 110 s, but .* ends 9\.9 s after"):
+        bin_events(cut, 100.0, 119.9, time_bins=8, attitude=_held(0.0, 110.0))
+
+
+def test_the_burst_api_refuses_a_table_that_stops_before_the_burst(burst_events):
+    # It analysed the burst with the table's last attitude (a silent wrong position); only
+    # the command line refused.  bin_events, under both, refuses now.
+    _, ev = burst_events
+    short = _held(0.0, 40.0)
+    bkg = fit_background(ev, [[0.0, 45.0], [70.0, 120.0]])
+    with pytest.raises(ParameterError, match=r"covers 0 \.\. 40 s, but t_start \.\. t_stop"):
+        localise_burst(ev, (45.0, 70.0), bkg, energy=ENERGY, radius=40.0, attitude=short)
+    with pytest.raises(ParameterError, match=r"covers 0 \.\. 40 s, but t_start \.\. t_stop"):
+        analyse_burst(ev, (50.0, 55.0), energy=ENERGY, radius=40.0, attitude=short)

@@ -217,3 +217,8 @@ def test_marks_the_plot_cannot_draw_and_uncovered_attitudes_are_refused_up_front
     with pytest.raises(UserError, match=r"--attitude: the table covers 0 \.\. 200 s, but the "
                                         r"observation runs 0 \.\. 600 s"):
         intervals_of(table, 0.0, 600.0, 50.0)
+    # The table's own test (AttitudeTable.covers) decides: round-off past the end (1e-7 s,
+    # a time through a double MJD) is covered, 1e-5 s is not (tolerance 1 us here).
+    assert intervals_of(table, 0.0, 200.0 + 1e-7, 50.0)[-1][1] == 200.0 + 1e-7
+    with pytest.raises(UserError, match=r"--attitude: the table covers 0 \.\. 200 s"):
+        intervals_of(table, 0.0, 200.0 + 1e-5, 50.0)

@@ -11,10 +11,10 @@ import pytest
 from rotmod import DetectorArray, Instrument
 from rotmod.errors import ParameterError
 from rotmod.io import load_instrument
-from rotmod.response import RadonResponse, TimeBinning
+from rotmod.response import RadonResponse, TimeBinning, build_response
 from rotmod.response.drift import RadonDriftResponse, drift_response
 from rotmod.response.spec import as_spec
-from rotmod.sky import Attitude, CelestialGrid, HealpixGrid, SkyGrid
+from rotmod.sky import Attitude, AttitudeTable, CelestialGrid, HealpixGrid, SkyGrid
 from rotmod.sky.attitude import attitude_rotations
 from rotmod.testing import dot_test
 
@@ -165,3 +165,23 @@ def test_bad_input_is_refused_with_the_rule() -> None:
     with pytest.raises(ParameterError, match="exact model"):
         drift_response(PROTO, GRID, BINS, [(0.0, 60.0, ATT0)], "advanced", 122,
                        operator="radon")
+
+
+def test_the_pieces_of_an_attitude_table_end_on_its_samples_and_never_past_them() -> None:
+    # The drift response's intervals come from AttitudeTable.intervals: over exactly the
+    # table's span they end on its last sample; past it the table refuses, where it held
+    # its last attitude (a drift silently frozen in the response).
+    drifting = AttitudeTable([0.0, 60.0, 120.0], [200.0, 200.5, 201.0], [-60.0, -60.3, -60.6],
+                             [10.0, 20.0, 30.0])
+    assert drifting.intervals(0.0, 120.0, 40.0)[-1][1] == 120.0
+    with pytest.raises(ParameterError, match=r"covers 0 \.\. 120 s, but t_start \.\. t_stop "
+                                             r"= 0 \.\. 180 s ends 60 s after its last"):
+        drifting.intervals(0.0, 180.0, 40.0)
+    # Independent evidence that the pieces of the whole span are used whole: a table holding
+    # ATT0 over two turns gives ATT0's own response (one attitude, whole turns: every bin
+    # has the same exposure), to float64 rounding of the geometry.
+    held = AttitudeTable([0.0, 120.0], [ATT0.ra] * 2, [ATT0.dec] * 2, [ATT0.roll] * 2)
+    steps = held.intervals(0.0, 120.0, 40.0)
+    drift = drift_response(PROTO, GRID, BINS, steps, energy=122)
+    ref = build_response(PROTO, GRID, BINS, energy=122, dtype=np.float64).matrix
+    np.testing.assert_allclose(drift.matrix, ref, rtol=0, atol=1e-10 * ref.max())

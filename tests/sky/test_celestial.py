@@ -198,9 +198,12 @@ def test_attitudes_interpolate_as_rotations_through_any_turn() -> None:
         a = slew.at(t)
         assert a.pointing.ra.deg == pytest.approx(1.7 * t, abs=1e-9)
         assert abs(a.pointing.dec.deg) < 1e-9
-    # Outside the samples: the first and last attitudes.
-    assert slew.at(-5.0).pointing.ra.deg == pytest.approx(0.0, abs=1e-9)
-    assert slew.at(500.0).pointing.ra.deg == pytest.approx(170.0, abs=1e-9)
+    # At the end samples the samples; outside them refused (it held the end attitude).
+    assert slew.at(0.0).pointing.ra.deg == pytest.approx(0.0, abs=1e-9)
+    assert slew.at(100.0).pointing.ra.deg == pytest.approx(170.0, abs=1e-9)
+    for t in (-5.0, 500.0):
+        with pytest.raises(ParameterError, match=r"t: the attitude table covers 0 \.\. 100 s"):
+            slew.at(t)
     for ra, roll_end in (([0.0, 180.0], [0.0, 0.0]), ([0.0, 0.0], [0.0, 180.0])):
         with pytest.raises(ParameterError, match="half turn"):
             AttitudeTable([0.0, 1.0, 2.0], [0.0, *ra[1:], ra[1]], [0.0, 0.0, 0.0],

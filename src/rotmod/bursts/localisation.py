@@ -177,9 +177,15 @@ def bin_events(events: EventList, t_start: Any, t_stop: Any, *,
         Mask-angle bins per rotation: the time bins are ``rotation_period / n_bins`` long.
     attitude : Attitude or AttitudeTable, optional
         Default the events' attitude.  A table is cut in segments of at most ``max_step``
-        seconds, each with its own attitude.
+        seconds, each with its own attitude; it must cover the good time of the widened
+        window (:meth:`~rotmod.sky.AttitudeTable.covers`).
     max_step : float
         Longest attitude segment (s), > 0.
+
+    Raises
+    ------
+    ParameterError
+        No good time in the window; an attitude table that does not cover its good time.
     """
     if not isinstance(events, EventList):
         raise ParameterError(f"events must be an EventList, got {type(events)}")
@@ -204,7 +210,10 @@ def bin_events(events: EventList, t_start: Any, t_stop: Any, *,
     if isinstance(att, Attitude):
         segment, attitudes = np.zeros(n_t, np.int64), (att,)
     else:
-        pieces = att.intervals(t0, t1, max_step)
+        # The attitude is needed where there is good time: the bins' edges widen the window
+        # to mask-angle boundaries, past the data (and a table covering them) at its ends.
+        good = hi > lo
+        pieces = att.intervals(float(lo[good].min()), float(hi[good].max()), max_step)
         cuts = np.array([p[1] for p in pieces[:-1]])
         segment = np.searchsorted(cuts, centres, side="right").astype(np.int64)
         attitudes = tuple(p[2] for p in pieces)

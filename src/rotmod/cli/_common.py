@@ -139,10 +139,11 @@ def intervals_of(table: AttitudeTable, t_start: float, t_stop: float,
 
 
 def check_covers(table: AttitudeTable, t_start: float, t_stop: float, hint: str) -> None:
-    """Refuse an ``--attitude`` table that does not cover ``[t_start, t_stop]`` (s): outside
-    its samples a table holds its end attitude, a drift silently frozen."""
-    t0, t1 = float(table.time[0]), float(table.time[-1])
-    if t_start < t0 or t_stop > t1:
+    """Refuse an ``--attitude`` table that does not cover ``[t_start, t_stop]`` (s), by the
+    table's own test (:meth:`~rotmod.sky.AttitudeTable.covers`, which its ``at`` and
+    ``intervals`` apply too), with the command line's words for it."""
+    if not table.covers(t_start, t_stop):
+        t0, t1 = table.span
         raise UserError(
             f"--attitude: the table covers {t0:g} .. {t1:g} s, but the observation runs "
             f"{t_start:g} .. {t_stop:g} s; {hint} (times are seconds from the start of the "

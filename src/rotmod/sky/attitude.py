@@ -33,7 +33,20 @@ from rotmod.conventions import source_angles, source_direction
 from rotmod.errors import ParameterError
 from rotmod.limits import check_memory, check_time
 
-__all__ = ["Attitude", "attitude_rotations"]
+__all__ = ["COVER_ABSOLUTE", "COVER_ROUND_OFF", "Attitude", "attitude_rotations"]
+
+#: How far beyond its first and last samples a time still counts as covered by an
+#: :class:`AttitudeTable`: float round-off only, the larger of COVER_ROUND_OFF times the
+#: table's largest ``|time|`` and COVER_ABSOLUTE seconds.  The spacing of floats at ``|t|``
+#: is 2.2e-16 ``|t|``, so 1e-12 allows ~4500 units in the last place of the times'
+#: arithmetic; 1 us allows a time stamp that went through a double MJD (spacing 0.63 us
+#: at MJD 6e4), which a relative tolerance alone refuses for times counted from 0.  At a
+#: mission elapsed time of 1e9 s it is 1 ms, in which a gondola swinging at 3 deg/s turns
+#: 0.003 deg, far below the instrument's resolution.  Not half a sample step: that would
+#: hold the end attitude for half a step (30 s of a 60 s aspect) without a word, and the
+#: command line's ``--attitude`` check allowed nothing past the samples.
+COVER_ROUND_OFF = 1e-12
+COVER_ABSOLUTE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -142,6 +155,10 @@ class AttitudeTable:
     not special.  Two consecutive samples exactly opposite (a half turn apart) have no
     unique path between them and are refused.
 
+    The table covers the times from its first sample to its last: :meth:`at` and
+    :meth:`intervals` refuse times outside them (beyond round-off, :attr:`tolerance`),
+    where the attitude is unknown; a single sample covers its own instant only.
+
     Parameters
     ----------
     time : array_like, shape (k,)
@@ -201,8 +218,68 @@ class AttitudeTable:
         object.__setattr__(self, "_slerp", Slerp(t, rot) if t.size > 1 else None)
         object.__setattr__(self, "_first", rot[0])
 
+    @property
+    def span(self) -> tuple[float, float]:
+        """The first and last sample times (s): the times the table covers."""
+        return float(self.time[0]), float(self.time[-1])
+
+    @property
+    def tolerance(self) -> float:
+        """How far (s) beyond its end samples a time still counts as covered: round-off,
+        :data:`COVER_ROUND_OFF` times the largest ``|time|``, at least
+        :data:`COVER_ABSOLUTE`."""
+        return max(COVER_ABSOLUTE,
+                   COVER_ROUND_OFF * float(max(abs(self.time[0]), abs(self.time[-1]))))
+
+    def covers(self, t_start: float, t_stop: float | None = None) -> bool:
+        """Whether the samples span the time ``t_start`` or the times ``[t_start, t_stop]``
+        (s), to :attr:`tolerance`: the one test of :meth:`at`, :meth:`intervals` and the
+        command line's ``--attitude``.
+
+        Raises
+        ------
+        ParameterError
+            A time not finite.
+        """
+        lo, hi = self.span
+        t0 = as_scalar(t_start, "t_start", u.s)
+        t1 = t0 if t_stop is None else as_scalar(t_stop, "t_stop", u.s)
+        return bool(t0 >= lo - self.tolerance and t1 <= hi + self.tolerance)
+
+    def _check_covers(self, name: str, t_start: float, t_stop: float) -> None:
+        """Refuse times outside the samples (:meth:`covers`), naming ``name``."""
+        if self.covers(t_start, t_stop):
+            return
+        lo, hi = self.span
+        one, tol = t_stop == t_start, self.tolerance
+        asked = f"{t_start:.12g} s" if one else f"{t_start:.12g} .. {t_stop:.12g} s"
+        early = f"{lo - t_start:.3g} s before its first sample"
+        late = f"{t_stop - hi:.3g} s after its last sample"
+        if one:
+            past = f"is {early if t_start < lo else late}"
+        else:
+            past = " and ".join([*([f"starts {early}"] if t_start < lo - tol else []),
+                                 *([f"ends {late}"] if t_stop > hi + tol else [])])
+        raise ParameterError(
+            f"{name}: the attitude table covers {lo:.12g} .. {hi:.12g} s, but {name} = {asked} "
+            f"{past} (round-off of {tol:.3g} s is allowed); outside its samples "
+            "the attitude is unknown (holding the end one would freeze the drift silently): "
+            "give a table that covers these times")
+
     def at(self, t: float) -> Attitude:
-        """The attitude at time ``t`` (s); constant before the first and after the last."""
+        """The attitude at time ``t`` (s), within the samples.
+
+        Raises
+        ------
+        ParameterError
+            ``t`` not finite, or outside the samples (beyond :attr:`tolerance`).
+        """
+        t = as_scalar(t, "t", u.s)
+        self._check_covers("t", t, t)
+        return self._at(t)
+
+    def _at(self, t: float) -> Attitude:
+        """The attitude at ``t``, covered (clipped onto the samples: round-off)."""
         if self._slerp is None:
             m = self._first.as_matrix()
         else:
@@ -216,7 +293,8 @@ class AttitudeTable:
         Raises
         ------
         ParameterError
-            Times not finite or not increasing, ``max_step <= 0``.
+            Times not finite or not increasing, outside the samples (beyond
+            :attr:`tolerance`), ``max_step <= 0``.
         rotmod.limits.MemoryBudgetError, rotmod.limits.TimeBudgetError
             More pieces than the memory or time budget allows (before any is made).
         """
@@ -225,6 +303,7 @@ class AttitudeTable:
         step = as_scalar(max_step, "max_step", u.s, lo=0.0, lo_open=True)
         if not t1 > t0:
             raise ParameterError(f"t_stop must be > t_start, got {t0:g} .. {t1:g} s")
+        self._check_covers("t_start .. t_stop", t0, t1)
         n = (t1 - t0) / step  # inf for a step below 1e-308 of the span: refused below
         n = math.ceil(n) if math.isfinite(n) else n
         what = (f"(t_stop - t_start) / max_step = {t1 - t0:g} s / {step:g} s = {n:.6g} "
@@ -234,7 +313,7 @@ class AttitudeTable:
         check_memory(400.0 * n, what, hint=hint)
         check_time(n, "attitude_pieces", what, hint=hint)
         edges = np.linspace(t0, t1, int(n) + 1)
-        return [(float(a), float(b), self.at(0.5 * (a + b)))
+        return [(float(a), float(b), self._at(0.5 * (a + b)))
                 for a, b in itertools.pairwise(edges)]
 
     def write(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:

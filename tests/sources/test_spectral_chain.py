@@ -111,11 +111,11 @@ def test_line_between_nodes_agrees_with_the_chain(chain) -> None:
 
 def test_power_law_agrees_with_the_chain(chain) -> None:
     """An ``E^-2`` continuum over 200 keV-2 MeV: 24 000 photons per detector and bin, each
-    with its own energy, against the response on 48 nodes (336 cells of 180 to 4800 counts).  Tolerance as for
-    the line (the table's noise, 1e4 photons a node, averages over the nodes a channel
-    collects from; photons of one energy in different cells add a little to the spread of
-    chi2): ``chi2/dof < 1.45`` (20 seeds: 0.76-1.29, mean 0.97) and ``|pull| < 4.5`` (20
-    seeds: at most 3.7).
+    with its own energy, against the response on 48 nodes (336 cells of 180 to 4800
+    counts).  Tolerance as for the line (the table's noise, 1e4 photons a node, averages
+    over the nodes a channel collects from; photons of one energy in different cells add a
+    little to the spread of chi2): ``chi2/dof < 1.45`` (20 seeds: 0.76-1.29, mean 0.97)
+    and ``|pull| < 4.5`` (20 seeds: at most 3.7).
 
     The check has the power to see the energy dependence of the modulation: the same
     response with every node's modulation pattern taken from the 662 keV node (its

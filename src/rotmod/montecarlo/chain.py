@@ -86,8 +86,9 @@ def simulate_channel_counts(
     For each true energy ``energies[k]`` one photon reaches each detector at each mask angle
     ``xi`` or in each mask-angle bin ``xi_edges`` (its point on the detector plane, and its
     angle within a bin, drawn uniformly, as :func:`~rotmod.montecarlo.simulate_profiles`
-    draws them, with the slats' and the crystal's attenuation at that energy).  Each photon counted (it crossed the mask and
-    interacted in the crystal) gets a deposit of its own from the detector transport
+    draws them, with the slats' and the crystal's attenuation at that energy).  Each photon
+    counted (it crossed the mask and interacted in the crystal) gets a deposit of its own
+    from the detector transport
     (:func:`rotmod.spectral.detector.draw_deposits`, a photon of its energy interacting in
     the uniformly lit crystal: the module's one shared approximation), smeared by
     ``resolution`` (:meth:`EnergyResolution.smear`) and binned: channel ``c`` takes

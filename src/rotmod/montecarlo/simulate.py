@@ -369,8 +369,8 @@ def _coefficients(one: Callable[[Any], float], many: Callable[[Any], np.ndarray]
 
 
 def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.ndarray,
-                  mu: np.ndarray, energy: float | np.ndarray | None, xi_lo: np.ndarray, xi_w: np.ndarray,
-                  binned: bool, thin_opaque: bool, n_t: int, n_n: int) -> tuple:
+                  mu: np.ndarray, energy: float | np.ndarray | None, xi_lo: np.ndarray,
+                  xi_w: np.ndarray, binned: bool, thin_opaque: bool, n_t: int, n_n: int) -> tuple:
     """Arguments of :func:`~rotmod.montecarlo._transport.profile_kernel_asbuilt` (after
     ``poisson_counts``), with the :attr:`MCProfiles.scale` last."""
     det, mask = inst.detectors, inst.mask

@@ -93,9 +93,11 @@ def simulate_channel_counts(
     the uniformly lit crystal: the module's one shared approximation), smeared by
     ``resolution`` (:meth:`EnergyResolution.smear`) and binned: channel ``c`` takes
     ``channel_edges[c] <= E < channel_edges[c + 1]``; a deposit of 0 (scattered out) is not
-    recorded.  Draw ``energies`` from the source's spectrum for a continuum (each photon
-    then has its own energy; photons of one energy in different detectors and bins are
-    independent histories), or repeat one energy for a line.
+    recorded.  Draw ``energies`` from the source's spectrum for a continuum, or repeat one
+    energy for a line.  The photons of one energy in different detectors and bins are
+    independent histories that share the energy: each cell's counts are binomial (its
+    photons' energies are independent draws), but a sum over cells is not, its variance
+    holding the energy draws' -- estimate a summed count's error from independent runs.
 
     Parameters
     ----------

@@ -6,10 +6,12 @@ detector or not (the same Monte Carlo: ``1 - exp(-mu l)`` along its chord in the
 and, if it was counted, deposits energy in the crystal (the detector transport of
 :func:`rotmod.spectral.detector.draw_deposits`: photoabsorption, Compton scattering, pair
 production, escapes); the deposit is smeared by the detector's resolution and binned into a
-channel.  Every photon has its own energy and its own histories; nothing is tabulated or
-interpolated, so the counts are an independent check of the energy-resolved response
-(:func:`rotmod.sources.spectra.spectral_columns`: node energies, columns linear in ``ln E``
-between them, the exact model's columns, the tabulated redistribution).
+channel.  Every photon has its own energy and its own histories; none of the energy-resolved
+response's tabulation enters (:func:`rotmod.sources.spectra.spectral_columns`: node
+energies, columns and redistribution linear in ``ln E`` between them, the exact model's
+columns, the redistribution histogrammed, folded and interpolated in angle), so the counts
+are an independent check of it.  Shared with it: the cross-sections (the transport's own
+table, 1000 points a decade), the transport's physics and the resolution's law.
 
 *One approximation is shared with the response*: the instrument Monte Carlo reports which
 detector counted a photon and in which bin, not where the photon entered the crystal, so the

@@ -12,10 +12,13 @@ the profile models but none of their 1-D reduction.
 
 Two entry points: :func:`simulate_profiles` (transmitted fraction per detector, mask
 angle and source, with binomial errors) and :func:`simulate_observation` (a time-tagged
-:class:`~rotmod.events.EventList` of a rotating mask).
+:class:`~rotmod.events.EventList` of a rotating mask); and :func:`simulate_channel_counts`,
+the whole chain photon by photon (mask, crystal, resolution) into counts per detector, bin
+and energy channel, with the detector transport of :mod:`rotmod.spectral.detector`.
 """
 
 from rotmod._rng import seed_sequence
+from rotmod.montecarlo.chain import ChannelCounts, simulate_channel_counts
 from rotmod.montecarlo.simulate import (
     MCProfiles,
     chord_lengths,
@@ -29,10 +32,12 @@ from rotmod.montecarlo.simulate import (
 from rotmod.sky.sources import PointSources
 
 __all__ = [
+    "ChannelCounts",
     "MCProfiles",
     "PointSources",
     "chord_lengths",
     "seed_sequence",
+    "simulate_channel_counts",
     "simulate_drift",
     "simulate_observation",
     "simulate_profiles",

@@ -18,6 +18,7 @@ from rotmod._validate import (
     as_angle_scalar,
     as_array,
     as_distance,
+    as_energy,
     as_energy_scalar,
     as_scalar,
 )
@@ -114,8 +115,9 @@ class MCProfiles:
         Mask angles (rad): the points simulated, or the bin centres.
     xi_edges : Quantity, shape (n_angle + 1,) or None
         Mask-angle bin edges (rad) when angles were sampled uniformly within bins.
-    energy : float or None
-        Photon energy (keV) used for the attenuation.
+    energy : float, ndarray of shape (n_src,) or None
+        Photon energy (keV) used for the attenuation; one per source when several were
+        given.
     instrument : Instrument
     scale : float or ndarray, shape (n_det, 1, n_src)
         Simulated photons per photon crossing one unobstructed detector face: 1 when
@@ -220,8 +222,11 @@ def simulate_profiles(
     xi_edges : array_like or Quantity, shape (n_angle + 1,), optional
         Increasing mask-angle bin edges (deg if plain numbers); each photon's angle is
         uniform in its bin.
-    energy : float or Quantity, optional
-        Photon energy (keV); needed unless the mask's attenuation is fixed.
+    energy : float, array_like or Quantity, optional
+        Photon energy (keV); needed unless the mask's attenuation is fixed.  An array gives
+        one energy per source (shape ``(n_src,)``): e.g. the same direction repeated with
+        energies drawn from a spectrum, each with its own photons (the mask's and the
+        detectors' attenuation are then those of each source's energy).
     n_photons : int
         Photons per (detector, angle, source) cell, >= 1.
     seed : None, int, SeedSequence or numpy Generator
@@ -278,12 +283,16 @@ def simulate_profiles(
         xs = 0.5 * (edges[1:] + edges[:-1])
     n_photons = _check_count(n_photons, "n_photons", 1)
     chunk_size = _check_count(chunk_size, "chunk_size", 1)
-    e = None if energy is None else as_energy_scalar(energy, "energy")
+    e = None if energy is None else _energies(energy, th.size)
     dist = as_distance(distance, th.size)
     if not isinstance(poisson, bool | np.bool_):
         raise ParameterError(f"poisson must be True or False, got {poisson!r}")
-    mu = np.full(th.size, inst.mask.linear_attenuation(e))
+    mu = _coefficients(inst.mask.linear_attenuation, inst.mask.material.linear_attenuation,
+                       inst.mask.mu is not None or inst.mask.material.mass_attenuation
+                       is not None, e, th.size)
     a, b, L, h, thin = _mask_params(inst)
+    if thin and np.isinf(mu).any() and not np.isinf(mu).all():
+        raise ParameterError("a thin opaque mask needs mu = inf at every source energy")
     thin_opaque = thin and bool(np.isinf(mu[0]))
     det = inst.detectors
     n_det, n_t, n_n = len(det), xs.size, th.size
@@ -337,9 +346,31 @@ def simulate_profiles(
     )
 
 
+def _energies(energy: Any, n_src: int) -> float | np.ndarray:
+    """``energy`` (keV) as one float, or as one energy per source (shape ``(n_src,)``)."""
+    if np.ndim(energy) == 0:
+        return as_energy_scalar(energy, "energy")
+    e = as_energy(energy, "energy", ndim=1)
+    if e.shape != (n_src,):
+        raise ParameterError(f"energy must be one value or one per source ({n_src}), got "
+                             f"{e.size} values")
+    return np.array(e, dtype=float)
+
+
+def _coefficients(one: Callable[[Any], float], many: Callable[[Any], np.ndarray],
+                  fixed: bool, energy: float | np.ndarray | None, n_src: int) -> np.ndarray:
+    """Attenuation coefficients (1/cm) per source: ``one(energy)`` for a fixed coefficient or
+    a single energy, else ``many`` at each source's energy (the database, vectorised)."""
+    if energy is None or np.ndim(energy) == 0:
+        return np.full(n_src, one(energy))
+    if fixed:  # the energies were checked; a fixed coefficient does not depend on them
+        return np.full(n_src, one(None))
+    return np.asarray(many(energy), dtype=float).reshape(n_src)
+
+
 def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.ndarray,
-                  mu: np.ndarray, energy: float | None, xi_lo: np.ndarray, xi_w: np.ndarray,
-                  binned: bool, thin_opaque: bool, n_t: int, n_n: int) -> tuple:
+                  mu: np.ndarray, energy: float | np.ndarray | None, xi_lo: np.ndarray,
+                  xi_w: np.ndarray, binned: bool, thin_opaque: bool, n_t: int, n_n: int) -> tuple:
     """Arguments of :func:`~rotmod.montecarlo._transport.profile_kernel_asbuilt` (after
     ``poisson_counts``), with the :attr:`MCProfiles.scale` last."""
     det, mask = inst.detectors, inst.mask
@@ -353,7 +384,16 @@ def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.nda
     gen = np.empty((n_det, n_n, 3))
     wmax = np.ones((n_det, n_n))
     scale = np.ones((n_det, 1, n_n))
+    # Sources repeated at one position (e.g. one direction at many energies) share the
+    # geometry of the first of them.
+    _, first, inverse = np.unique(np.stack([th, ph, dist], axis=1), axis=0,
+                                  return_index=True, return_inverse=True)
+    rep = first[inverse.ravel()]
     for n in range(n_n):
+        if rep[n] != n:
+            gen[:, n], wmax[:, n], scale[:, 0, n] = (gen[:, rep[n]], wmax[:, rep[n]],
+                                                     scale[:, 0, rep[n]])
+            continue
         for d in range(n_det):
             c = pos[d]
             if finite[n]:
@@ -373,7 +413,9 @@ def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.nda
                     scale[d, 0, n] = disc_flux(S[n], g, gr) / disc_flux(S[n], c, R)
             elif H > 0:
                 scale[d, 0, n] = (gr / R) ** 2
-    mu_det = np.full(n_n, det.linear_attenuation(energy) if H > 0 else 0.0)
+    mu_det = (_coefficients(det.linear_attenuation, det.material.linear_attenuation,
+                            det.material.mass_attenuation is not None, energy, n_n)
+              if H > 0 else np.zeros(n_n))
     Q, cm = mask.frame()
     e0, W, _, p = mask.pattern()
     kind = {None: 0, "circle": 1, "square": 2}[mask.outline]

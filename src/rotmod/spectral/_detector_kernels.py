@@ -260,6 +260,41 @@ def _history(st, px, py, pz, dx, dy, dz, e, s_first, R, H, table, ln0, inv_dln, 
         e = ME_KEV
 
 
+@njit(cache=True, inline="always")
+def _label(st, mode, sin_t, cos_t, shift, dist, cos_max, R):
+    """A primary ray: where it crosses the plane z = 0 and its direction ``(qx, qy, dx, dy,
+    dz)``.  Parallel beam (``mode`` 0): labels uniform in the cylinder's shadow (hull of the
+    top circle and the bottom circle's shadow, centre ``(shift, 0)``, ``shift = H tan
+    theta``), by rejection from its box.  Point source on the axis at height ``dist`` (mode
+    1): directions in the cone that covers the top face (every such ray enters through
+    it)."""
+    if mode == 0:
+        while True:
+            qx = -R + (2.0 * R + shift) * _u01(st)
+            qy = R * (2.0 * _u01(st) - 1.0)
+            if abs(qy) <= R and 0.0 <= qx <= shift:
+                break
+            if qx * qx + qy * qy <= R * R:
+                break
+            if (qx - shift) ** 2 + qy * qy <= R * R:
+                break
+        return qx, qy, -sin_t, 0.0, -cos_t
+    cost = 1.0 - (1.0 - cos_max) * _u01(st)
+    sint = math.sqrt(max(0.0, 1.0 - cost * cost))
+    phi = 2.0 * math.pi * _u01(st)
+    dx = sint * math.cos(phi)
+    dy = sint * math.sin(phi)
+    tz = dist / cost
+    return tz * dx, tz * dy, dx, dy, -cost
+
+
+@njit(cache=True, inline="always")
+def _mu_total(table, ln0, inv_dln, n_grid, e):
+    i, f = _row(ln0, inv_dln, n_grid, e)
+    return (_col(table, i, f, 0) + _col(table, i, f, 1) + _col(table, i, f, 2)
+            + _col(table, i, f, 3))
+
+
 @njit(cache=True)
 def _chunk(st, n, e, mode, sin_t, cos_t, dist, R, H, forced, table, ln0, inv_dln, n_grid,
            n_fl, lines, e_cut, thomson, hist, tally):
@@ -268,39 +303,11 @@ def _chunk(st, n, e, mode, sin_t, cos_t, dist, R, H, forced, table, ln0, inv_dln
     weight, no-deposit weight, weight of deposits above ``e``)."""
     n_fine = hist.size
     stack = np.empty((4, 6))
-    i, f = _row(ln0, inv_dln, n_grid, e)
-    mu_t = (_col(table, i, f, 0) + _col(table, i, f, 1) + _col(table, i, f, 2)
-            + _col(table, i, f, 3))
+    mu_t = _mu_total(table, ln0, inv_dln, n_grid, e)
     shift = H * sin_t / cos_t
     cos_max = dist / math.sqrt(dist * dist + R * R)
     for _ in range(n):
-        if mode == 0:
-            # Parallel beam: labels uniform in the shadow (hull of the top circle and the
-            # bottom circle's shadow, centre (H tan theta, 0)), by rejection from its box.
-            while True:
-                qx = -R + (2.0 * R + shift) * _u01(st)
-                qy = R * (2.0 * _u01(st) - 1.0)
-                if abs(qy) <= R and 0.0 <= qx <= shift:
-                    break
-                if qx * qx + qy * qy <= R * R:
-                    break
-                if (qx - shift) ** 2 + qy * qy <= R * R:
-                    break
-            dx = -sin_t
-            dy = 0.0
-            dz = -cos_t
-        else:
-            # Point source on the axis at height dist: directions in the cone that covers
-            # the top face (every such ray enters through it).
-            cost = 1.0 - (1.0 - cos_max) * _u01(st)
-            sint = math.sqrt(max(0.0, 1.0 - cost * cost))
-            phi = 2.0 * math.pi * _u01(st)
-            dx = sint * math.cos(phi)
-            dy = sint * math.sin(phi)
-            dz = -cost
-            tz = dist / cost
-            qx = tz * dx
-            qy = tz * dy
+        qx, qy, dx, dy, dz = _label(st, mode, sin_t, cos_t, shift, dist, cos_max, R)
         t1, t2 = _entry(qx, qy, dx, dy, dz, R, H)
         length = t2 - t1
         if length <= 0.0:
@@ -329,6 +336,38 @@ def _chunk(st, n, e, mode, sin_t, cos_t, dist, R, H, forced, table, ln0, inv_dln
         else:
             k = int(edep / e * n_fine)
             hist[min(k, n_fine - 1)] += wgt
+
+
+@njit(cache=True)
+def _draw_chunk(st, energies, lo, hi, sin_t, cos_t, R, H, table, ln0, inv_dln, n_grid, n_fl,
+                lines, e_cut, thomson, out):
+    """Photons ``lo <= i < hi`` of :func:`draw_kernel`: for each, analog primaries of energy
+    ``energies[i]`` in a parallel beam until one interacts; ``out[i]`` its deposit."""
+    stack = np.empty((4, 6))
+    shift = H * sin_t / cos_t
+    for i in range(lo, hi):
+        e = energies[i]
+        mu_t = _mu_total(table, ln0, inv_dln, n_grid, e)
+        while True:
+            qx, qy, dx, dy, dz = _label(st, 0, sin_t, cos_t, shift, 1.0, 0.0, R)
+            t1, t2 = _entry(qx, qy, dx, dy, dz, R, H)
+            s = -math.log(1.0 - _u01(st)) / mu_t
+            if s < t2 - t1:
+                break
+        out[i] = _history(st, qx + t1 * dx, qy + t1 * dy, t1 * dz, dx, dy, dz, e, s, R, H,
+                          table, ln0, inv_dln, n_grid, n_fl, lines, e_cut, thomson, stack)
+
+
+@njit(parallel=True, cache=True)
+def draw_kernel(states, bounds, energies, sin_t, cos_t, R, H, table, ln0, inv_dln, n_fl,
+                lines, e_cut, thomson, out):
+    """Chunk ``j`` (own RNG state ``states[j]``) draws the deposits of photons
+    ``bounds[j] <= i < bounds[j + 1]``, each given that it interacts (analog: primaries are
+    drawn until one does, so the deposits follow the redistribution given an interaction of
+    a uniformly lit face); the parallel loop only calls :func:`_draw_chunk`."""
+    for j in prange(states.shape[0]):
+        _draw_chunk(states[j].copy(), energies, bounds[j], bounds[j + 1], sin_t, cos_t, R, H,
+                    table, ln0, inv_dln, table.shape[0], n_fl, lines, e_cut, thomson, out)
 
 
 @njit(parallel=True, cache=True)

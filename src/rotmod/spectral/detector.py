@@ -62,6 +62,7 @@ __all__ = [
     "MAX_PHOTONS",
     "DepositSpectrum",
     "DetectorResponse",
+    "draw_deposits",
     "sample_klein_nishina",
     "simulate_deposits",
     "tabulate_response",
@@ -617,6 +618,62 @@ def tabulate_response(
             full[a, i] = s.full_energy
             mat[a, i] = _fold(s.centres, s.continuum, s.energy, s.full_energy, ch, resolution)
     return DetectorResponse(ang, e, ch, inter, err, mat, full, resolution, n, det)
+
+
+def draw_deposits(
+    detectors: DetectorArray,
+    energies: Any,
+    theta: Any = 0.0,
+    *,
+    rayleigh: str = "thomson",
+    seed: Any = None,
+) -> np.ndarray:
+    """The energy each of a list of interacting photons deposits, photon by photon.
+
+    For each true energy ``energies[i]``, primaries of that energy in a parallel beam at
+    zenith angle ``theta`` (the detector's face lit uniformly, as :func:`simulate_deposits`)
+    are transported, analog, until one interacts; its deposit (keV, its secondaries
+    included) is returned.  So the deposits follow the redistribution *given an
+    interaction*, with no histogram and no table: a photon-by-photon Monte Carlo hands the
+    photons it counted in a detector (e.g. :func:`rotmod.montecarlo.simulate_profiles`) to
+    it.  A deposit of 0 is an interaction that left nothing (Rayleigh scattered out).
+
+    Parameters
+    ----------
+    detectors : DetectorArray
+        The cylinder (see :func:`simulate_deposits`).
+    energies : array_like or Quantity, shape (n,)
+        True energies (keV) of the interacting photons, within :data:`ENERGY_RANGE_KEV`;
+        at most :data:`MAX_PHOTONS`.
+    theta : float or Quantity
+        Zenith angle of the beam (deg), ``0 <= theta < 90``.
+    rayleigh : {"thomson", "forward"}
+        See :func:`simulate_deposits`.
+    seed : None, int, SeedSequence or Generator
+        Results depend on the seed, not on the number of threads.
+
+    Returns
+    -------
+    numpy.ndarray
+        Deposited energies (keV), shape ``(n,)``, each in ``[0, energies[i]]``.
+    """
+    det = _check_detector(detectors)
+    e = np.ascontiguousarray(_check_energy(energies, "energies"), dtype=float)
+    if e.size > MAX_PHOTONS:
+        raise ParameterError(f"energies must hold at most {MAX_PHOTONS} photons, got {e.size}")
+    th = as_angle_scalar(theta, "theta", lo=0.0, hi=90.0, hi_open=True)
+    if rayleigh not in ("thomson", "forward"):
+        raise ParameterError(f"rayleigh must be 'thomson' or 'forward', got {rayleigh!r}")
+    out = np.zeros(e.size)
+    if e.size == 0:
+        return out
+    med = _medium(det, float(e.max()))
+    m = min(_N_CHUNKS, e.size)
+    bounds = np.linspace(0, e.size, m + 1).round().astype(np.int64)
+    _k.draw_kernel(chunk_states(seed_sequence(seed), m), bounds, e, math.sin(th),
+                   math.cos(th), det.radius, det.thickness, med.table, med.ln0, med.inv_dln,
+                   np.int64(med.lines.shape[0]), med.lines, 1.0, rayleigh == "thomson", out)
+    return out
 
 
 def sample_klein_nishina(energy: Any, n: int, seed: Any = None) -> tuple[np.ndarray, np.ndarray]:

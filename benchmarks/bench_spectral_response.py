@@ -186,7 +186,7 @@ def main() -> None:
                                  resolution=RESOLUTION, n_photons=args.table_photons, seed=3)
 
     def summed_with(table) -> np.ndarray:
-        c = SpectralColumns(cols.columns, table.matrix_at(THETA), cols.energies,
+        c = SpectralColumns(cols.columns, table.matrix_at(THETA)[:, None], cols.energies,
                             cols.channel_edges, cols.theta)
         return expected(c, face_a).sum(axis=(0, 1))
 

@@ -227,7 +227,7 @@ def main() -> None:
     fits = {k: fits[k] for k in args.fits.split(",")}
     # The flight's folded counts (slices summed): the sources through the flight's mean
     # transmission (equal slices), one interval, a constant level per detector and channel.
-    folded = SpectralColumns(cols.columns * cols.transmission.mean(axis=0)[..., None, None],
+    folded = SpectralColumns(cols.columns * cols.transmission.mean(axis=0)[:, None, :, None, None],
                              cols.redistribution, cols.energies, cols.channel_edges,
                              cols.theta)
 

@@ -92,7 +92,8 @@ def seeds(inst, xi, resp, n: int) -> None:
     k = int(np.argmin(np.abs(T.NODES - T.LINE)))
     c = pc.columns
     frozen = T.SpectralColumns(
-        c[:, k:k + 1] * (c.sum(axis=3, keepdims=True) / c[:, k:k + 1].sum(axis=3, keepdims=True)),
+        c[:, :, k:k + 1] * (c.sum(axis=4, keepdims=True)
+                            / c[:, :, k:k + 1].sum(axis=4, keepdims=True)),
         pc.redistribution, pc.energies, pc.channel_edges, pc.theta)
     line, pl = T.Gaussian(1.0, T.LINE, 0.01), T.PowerLaw(1.0, -2.0, 100.0)
     law = T.PhotonPowerLaw(2.0, T.NODES[0], T.NODES[-1])

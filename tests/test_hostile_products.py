@@ -653,9 +653,9 @@ def test_fit_of_no_counts_refused() -> None:
 def _columns() -> tuple[SpectralColumns, np.ndarray, np.ndarray]:
     """One source, 5 node energies, 2 detectors, 4 bins, 3 channels (known, random)."""
     rng = np.random.default_rng(0)
-    cols = SpectralColumns(rng.uniform(0.5, 1.0, (1, 5, 2, 4)), np.eye(5, 3)[None] * 0.9,
+    cols = SpectralColumns(rng.uniform(0.5, 1.0, (1, 1, 5, 2, 4)), np.eye(5, 3)[None, None] * 0.9,
                            np.geomspace(50.0, 500.0, 5), np.geomspace(40.0, 600.0, 4),
-                           np.array([5.0]))
+                           np.array([[5.0]]))
     return cols, rng.poisson(5.0, (2, 4, 3)), np.full(4, 10.0)
 
 

@@ -81,7 +81,7 @@ def test_transparent_mask_gives_the_detector_monte_carlo(detector_response) -> N
     resp = build_response(_instrument(glass), SkyGrid.square(4, 1.0), 12, energy=300.0)
     cols = spectral_columns(resp, (40.0, 30.0), detector_response)
     k = 20  # a monoenergetic line at one node: 1 photon cm^-2 s^-1 in that node's bin
-    per_bin = cols.columns[0, k][..., None] * cols.redistribution[0, k]   # (det, t, c)
+    per_bin = cols.columns[0, 0, k][..., None] * cols.redistribution[0, 0, k]  # (det, t, c)
     want = (np.pi * 2.5**2 * np.cos(np.radians(40.0))
             * detector_response.counts_per_photon(40.0)[0, k])
     np.testing.assert_allclose(per_bin, np.broadcast_to(want, per_bin.shape), rtol=0.03,
@@ -96,7 +96,7 @@ def test_atmosphere_scales_each_energy(detector_response) -> None:
     bare = spectral_columns(resp, (5.0, 30.0), detector_response)
     trans = np.exp(-0.1 * (NODES / 100.0) ** -0.5)
     air = spectral_columns(resp, (5.0, 30.0), detector_response, transmission=trans)
-    np.testing.assert_allclose(air.columns, bare.columns * trans[None, :, None, None],
+    np.testing.assert_allclose(air.columns, bare.columns * trans[None, None, :, None, None],
                                rtol=1e-14)
     with pytest.raises(ParameterError, match=r"transmission must lie in \[0, 1\]"):
         spectral_columns(resp, (5.0, 30.0), detector_response, transmission=2.0)
@@ -380,7 +380,7 @@ def test_sliced_rates_are_each_slice_through_its_transmission(flight) -> None:
     model = PowerLaw(1e-3, -2.2)
     rates = cols.rates(0, model)
     for s in range(N_SLICE):
-        t = cols.transmission[s][:, :, None, None]
+        t = cols.transmission[s][:, None, :, None, None]
         each = SpectralColumns(one.columns * t, one.redistribution, one.energies,
                                one.channel_edges, one.theta)
         np.testing.assert_allclose(rates[s], each.rates(0, model), rtol=1e-12, atol=1e-15)
@@ -462,7 +462,7 @@ def test_constant_altitude_reduces_to_the_constant_level_fit(flight) -> None:
     trans = np.broadcast_to(cols.transmission[1], cols.transmission.shape)
     steady = SpectralColumns(bare.columns, bare.redistribution, bare.energies,
                              bare.channel_edges, bare.theta, trans)
-    one = SpectralColumns(bare.columns * trans[0][:, :, None, None], bare.redistribution,
+    one = SpectralColumns(bare.columns * trans[0][:, None, :, None, None], bare.redistribution,
                           bare.energies, bare.channel_edges, bare.theta)
     tmpl = np.broadcast_to(sum(t[0] for t in _templates(steady.shape[-1]).values()),
                            (N_SLICE, steady.shape[-1]))

@@ -142,8 +142,8 @@ def test_power_law_agrees_with_the_chain(chain) -> None:
     # Modulation frozen at one energy: each node's pattern over the bins is that of 662 keV.
     k = int(np.argmin(np.abs(NODES - LINE)))
     c = cols.columns
-    frozen = c[:, k:k + 1] * (c.sum(axis=3, keepdims=True) / c[:, k:k + 1].sum(axis=3,
-                                                                                keepdims=True))
+    frozen = c[:, :, k:k + 1] * (c.sum(axis=4, keepdims=True)
+                                 / c[:, :, k:k + 1].sum(axis=4, keepdims=True))
     wrong = SpectralColumns(frozen, cols.redistribution, cols.energies, cols.channel_edges,
                             cols.theta)
     chi2_wrong, _, _ = pearson(mc.counts, _scaled(wrong, model, mc.face_photons))

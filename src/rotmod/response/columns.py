@@ -27,7 +27,7 @@ from rotmod.response.unfolded import UnfoldedResponse
 from rotmod.sky.geometry import SkyGeometry
 from rotmod.sky.points import DirectionList, PositionList
 
-__all__ = ["columns_at", "position_grid"]
+__all__ = ["columns_at", "component_columns", "position_grid"]
 
 #: Profile values below which a column is evaluated on one thread: a fit evaluates a few
 #: columns at a time, ~1 ms of work, and a parallel launch on a loaded machine can wait a
@@ -106,6 +106,29 @@ def columns_at(response: ResponseOperator, positions: Any, *, energy: Any = None
         return response.gather([columns_at(p, positions, energy=energy)
                                 for p in response.parts])
     out = np.zeros((response.n_det, response.n_time, 0))
+    for part in component_columns(response, positions, energy=energy):
+        out = part if out.shape[2] == 0 else out + part
+    return np.asarray(out, dtype=np.float64)
+
+
+def component_columns(response: ResponseOperator, positions: Any, *, energy: Any = None
+                      ) -> list[np.ndarray]:
+    """The columns of each of the response's components (:meth:`ResponseOperator.components`,
+    one per attitude interval of a drifting observation), each times its weights: their sum
+    is :func:`columns_at`.
+
+    Parameters
+    ----------
+    response, positions, energy
+        As :func:`columns_at` (a response that is a sum of folded ones: not an
+        :class:`~rotmod.response.UnfoldedResponse`).
+
+    Returns
+    -------
+    list of ndarray, shape (n_det, n_time, n_positions)
+        In the order of ``response.components()``.
+    """
+    out = []
     for weights, spec in response.components():
         points = position_grid(spec.grid, positions)
         with _threads_for(response.n_det * response.n_time * points.size):
@@ -115,8 +138,8 @@ def columns_at(response: ResponseOperator, positions: Any, *, energy: Any = None
             part = build_response(at).matrix
         if weights is not None:
             part = part * np.asarray(weights, dtype=float)[None, :, None]
-        out = part if out.shape[2] == 0 else out + part
-    return np.asarray(out, dtype=np.float64)
+        out.append(np.asarray(part, dtype=np.float64))
+    return out
 
 
 def _deg(q: Any) -> np.ndarray:

@@ -51,7 +51,7 @@ from rotmod._validate import as_int
 from rotmod.errors import ParameterError
 from rotmod.events import EventList, fold
 from rotmod.limits import check_memory
-from rotmod.response.columns import columns_at, position_grid
+from rotmod.response.columns import component_columns, position_grid
 from rotmod.response.operator import ResponseOperator
 from rotmod.sources.likelihood import Groups, _schur, maximise
 from rotmod.spectral.detector import DetectorResponse
@@ -73,18 +73,27 @@ __all__ = [
 class SpectralColumns:
     """The energy-resolved response of point sources at fixed positions.
 
+    Each source's counts are a sum over its angle nodes ``a``: the columns that see the
+    redistribution at the node's zenith angle.  For one attitude a source has one node, its
+    own angle (the redistribution interpolated there, :meth:`DetectorResponse.matrix_at`);
+    for a drifting observation, where each attitude interval sees the source at its own
+    angle, its nodes are the tabulated angles it visits and each interval's columns are
+    shared between them with the interpolation's own weights (docs/spectra.md: exact with
+    respect to that interpolation).
+
     Attributes
     ----------
-    columns : ndarray, shape (n_src, n_e, n_det, n_time)
+    columns : ndarray, shape (n_src, n_a, n_e, n_det, n_time)
         Counts per second in each detector and bin per photon cm^-2 s^-1 at each node
-        energy (the response's column times the face's projected area).
-    redistribution : ndarray, shape (n_src, n_e, n_c)
-        The detector's redistribution at each source's zenith angle.
+        energy (the response's column times the face's projected area), per angle node
+        (a source with fewer nodes than ``n_a`` has columns of 0 in the others).
+    redistribution : ndarray, shape (n_src, n_a, n_e, n_c)
+        The detector's redistribution at each angle node.
     energies : ndarray, shape (n_e,)
         The node energies (keV).
     channel_edges : ndarray, shape (n_c + 1,)
-    theta : ndarray, shape (n_src,)
-        Zenith angles (deg).
+    theta : ndarray, shape (n_src, n_a)
+        The angle nodes' zenith angles (deg).
     transmission : ndarray, shape (n_slice, n_src, n_e), optional
         For a flight cut into time slices (each folded into mask-angle bins): the fraction
         of each source's photons at each node energy that reach the instrument in each
@@ -100,31 +109,47 @@ class SpectralColumns:
     theta: np.ndarray
     transmission: np.ndarray | None = None
 
+    def __post_init__(self) -> None:
+        cols, red = np.shape(self.columns), np.shape(self.redistribution)
+        n_e, n_c = np.size(self.energies), np.size(self.channel_edges) - 1
+        if len(cols) != 5 or cols[2] != n_e:
+            raise ParameterError(f"columns must have shape (n_src, n_angle_nodes, n_e={n_e}, "
+                                 f"n_det, n_time), got {cols}")
+        if red != (*cols[:3], n_c):
+            raise ParameterError(f"redistribution must have shape (n_src, n_angle_nodes, n_e, "
+                                 f"n_c) = {(*cols[:3], n_c)}, got {red}")
+        if np.shape(self.theta) != cols[:2]:
+            raise ParameterError(f"theta must have shape (n_src, n_angle_nodes) = {cols[:2]}, "
+                                 f"got {np.shape(self.theta)}")
+
     @property
     def shape(self) -> tuple[int, ...]:
         """``(n_det, n_time, n_channels)`` of the counts it predicts, ``(n_slice, n_det,
         n_time, n_channels)`` for a flight's time slices."""
-        one = (*self.columns.shape[2:], self.redistribution.shape[2])
+        one = (*self.columns.shape[3:], self.redistribution.shape[3])
         return one if self.transmission is None else (self.transmission.shape[0], *one)
 
     def rates(self, k: int, model: SpectralModel) -> np.ndarray:
         """Counts per second (:attr:`shape`) of source ``k`` with spectrum ``model``."""
         flux = model.node_weights(self.energies)
-        n_e, n_det, n_t = self.columns.shape[1:]
-        cols = self.columns[k].reshape(n_e, -1).T            # (n_det n_t, n_e)
+        n_a, n_e, n_det, n_t = self.columns.shape[1:]
+        # The angle nodes and energies as one axis: sum_a sum_e F_e col[a, e, d, t] M[a, e, c]
+        # is one (n_det n_t, n_a n_e) x (n_a n_e, n_c) product.
+        cols = self.columns[k].reshape(n_a * n_e, -1).T      # (n_det n_t, n_a n_e)
         if self.transmission is None:
-            # sum_e F_e col[e, d, t] M[e, c], as one (n_det n_t, n_e) x (n_e, n_c) product.
-            return (cols @ (flux[:, None] * self.redistribution[k])).reshape(self.shape)
-        # Per slice s the photons F_e T[s, e]: one (n_det n_t, n_e) x (n_e, n_s n_c) product.
-        m = (self.transmission[:, k] * flux)[:, :, None] * self.redistribution[k]
-        n_s, n_c = m.shape[0], m.shape[2]
-        out = cols @ m.transpose(1, 0, 2).reshape(n_e, n_s * n_c)
+            m = (flux[:, None] * self.redistribution[k]).reshape(n_a * n_e, -1)
+            return (cols @ m).reshape(self.shape)
+        # Per slice s the photons F_e T[s, e]: one (n_det n_t, n_a n_e) x (n_a n_e, n_s n_c)
+        # product.
+        m = (self.transmission[:, k] * flux)[:, None, :, None] * self.redistribution[k]
+        n_s, n_c = m.shape[0], m.shape[3]
+        out = cols @ m.transpose(1, 2, 0, 3).reshape(n_a * n_e, n_s * n_c)
         return np.moveaxis(out.reshape(n_det, n_t, n_s, n_c), 2, 0)
 
 
 def spectral_columns(
     response: ResponseOperator, positions: Any, detector_response: DetectorResponse, *,
-    transmission: Any = None,
+    transmission: Any = None, interval_transmission: Any = None,
 ) -> SpectralColumns:
     """The energy-resolved response of point sources at ``positions``.
 
@@ -132,8 +157,11 @@ def spectral_columns(
     ----------
     response : ResponseOperator
         A response of the instrument (its binning, model and sky frame are used; its
-        energy is replaced by each node energy).  One attitude: a drifting observation's
-        sum over attitudes is not supported yet.
+        energy is replaced by each node energy): of one attitude, or a drifting
+        observation's sum over attitude intervals (:func:`rotmod.response.drift.
+        drift_response`; :meth:`~rotmod.response.ResponseOperator.components`), where each
+        interval sees a source at its own zenith angle and so with its own redistribution
+        (:class:`SpectralColumns`; docs/spectra.md).
     positions : SkyCoord or (theta, phi)
         The sources (:func:`rotmod.response.columns_at`).
     detector_response : DetectorResponse
@@ -150,7 +178,12 @@ def spectral_columns(
         source's zenith angle then; the mean over the slice where they change within it):
         the columns then predict counts ``(n_slice, n_det, n_time, n_c)``.  The sources'
         positions in the instrument are the same in every slice (a pointed, tracking
-        gondola).
+        gondola; one attitude).
+    interval_transmission : array_like, shape (n_intervals, n_src, n_e), optional
+        For a drifting observation instead of ``transmission``: the fraction per attitude
+        interval (one per component of ``response``, in order), e.g. a zenith-pointed
+        balloon, where each source's zenith angle changes through the flight.  Each
+        interval's columns are multiplied by it before the sum over intervals.
 
     Returns
     -------
@@ -161,35 +194,93 @@ def spectral_columns(
     if not isinstance(detector_response, DetectorResponse):
         raise ParameterError("detector_response must be a rotmod.spectral.detector."
                              f"DetectorResponse, got {type(detector_response).__name__}")
-    parts = response.components()
-    if len(parts) != 1 or parts[0][0] is not None:
-        raise ParameterError(
-            "response: spectral fits take a response of one attitude; a drifting observation "
-            f"({len(parts)} attitude intervals) is not supported yet")
-    spec = parts[0][1]
-    _check_energy_dependence(spec.instrument, detector_response)
-    det = spec.instrument.detectors
+    specs = [spec for _, spec in response.components()]
+    _check_energy_dependence(specs[0].instrument, detector_response)
+    det = specs[0].instrument.detectors
     nodes = np.asarray(detector_response.energies, dtype=float)
     if nodes.size < 2:
         raise ParameterError("detector_response must be tabulated at two or more energies")
-    theta = np.degrees(position_grid(spec.grid, positions).directions()[0].value)
-    trans = None if transmission is None else _transmission(transmission, theta.size,
-                                                            nodes.size)
+    # Each interval's zenith angle of each source (deg), (n_intervals, n_src).
+    thetas = np.array([np.degrees(position_grid(s.grid, positions).directions()[0].value)
+                       for s in specs])
+    n_k, n_src = thetas.shape
+    trans = None if transmission is None else _transmission(transmission, n_src, nodes.size)
+    if trans is not None and trans.ndim == 3 and n_k > 1:
+        raise ParameterError(
+            f"transmission: time slices of {trans.shape[0]} transmissions take a response of "
+            f"one attitude each; for a drifting observation ({n_k} attitude intervals) give "
+            "interval_transmission, one per interval")
+    per_k = None
+    if interval_transmission is not None:
+        if transmission is not None:
+            raise ParameterError("give transmission or interval_transmission, not both "
+                                 "(fold any common factor into interval_transmission)")
+        per_k = _transmission(interval_transmission, n_src, nodes.size)
+        if per_k.ndim != 3 or per_k.shape[0] != n_k:
+            raise ParameterError(
+                f"interval_transmission must have shape (n_intervals, n_sources, n_energies)"
+                f" = {(n_k, n_src, nodes.size)} (one per attitude interval of the response), "
+                f"got {np.shape(interval_transmission)}")
+    share, red, node_theta = _angle_nodes(thetas, detector_response)
     n_det, n_t = response.n_det, response.n_time
-    check_memory(8.0 * theta.size * nodes.size * n_det * n_t,
-                 f"the columns of {theta.size} sources at {nodes.size} energies",
+    check_memory(8.0 * share.size * nodes.size * n_det * n_t,
+                 f"the columns of {n_src} sources at {share.shape[2]} angle nodes and "
+                 f"{nodes.size} energies",
                  hint="tabulate the detector response at fewer energies")
-    cols = np.empty((theta.size, nodes.size, n_det, n_t))
+    cols = np.zeros((n_src, share.shape[2], nodes.size, n_det, n_t))
+    area = np.pi * det.radius**2 * np.cos(np.radians(thetas))       # (n_intervals, n_src)
     for e, energy in enumerate(nodes):
-        cols[:, e] = np.moveaxis(columns_at(response, positions, energy=energy), 2, 0)
-    area = np.pi * det.radius**2 * np.cos(np.radians(theta))
-    cols *= area[:, None, None, None]
+        parts = component_columns(response, positions, energy=energy)
+        for k, part in enumerate(parts):
+            at = np.moveaxis(part, 2, 0) * area[k][:, None, None]
+            if per_k is not None:
+                at = at * per_k[k, :, e][:, None, None]
+            cols[:, :, e] += share[k][:, :, None, None] * at[:, None]
     if trans is not None and trans.ndim == 2:
-        cols *= trans[:, :, None, None]
-    red = detector_response.matrix_at(theta)
+        cols *= trans[:, None, :, None, None]
     return SpectralColumns(cols, red, nodes,
-                           np.asarray(detector_response.channel_edges, dtype=float), theta,
-                           trans if trans is not None and trans.ndim == 3 else None)
+                           np.asarray(detector_response.channel_edges, dtype=float),
+                           node_theta, trans if trans is not None and trans.ndim == 3 else None)
+
+
+def _angle_nodes(thetas: np.ndarray, detector_response: DetectorResponse
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each source's angle nodes for its zenith angles ``thetas`` (deg, ``(n_intervals,
+    n_src)``): the share of each interval's columns in each node ``(n_intervals, n_src,
+    n_a)``, the nodes' redistribution ``(n_src, n_a, n_e, n_c)`` and angles ``(n_src, n_a)``.
+
+    A source seen at one angle in every interval has one node there (the redistribution
+    interpolated at it); one whose angle changes has the tabulated angles it visits, each
+    interval's columns shared between them with the interpolation's weights
+    (:meth:`DetectorResponse.angle_weights`), so that ``sum_a share[k, a] matrix[a]`` is
+    the interval's ``matrix_at(theta_k)``.  Sources with fewer nodes than ``n_a`` share 0
+    with the rest (their redistribution repeats the first node's).
+    """
+    n_k, n_src = thetas.shape
+    shares, mats, angles = [], [], []
+    for s in range(n_src):
+        th = thetas[:, s]
+        if np.all(th == th[0]):
+            shares.append(np.ones((n_k, 1)))
+            mats.append(detector_response.matrix_at(th[:1]))
+            angles.append(th[:1])
+            continue
+        h = detector_response.angle_weights(th)                # (n_intervals, n_angles)
+        seen = np.flatnonzero(np.any(h > 0, axis=0))
+        shares.append(h[:, seen])
+        mats.append(detector_response.matrix[seen])
+        angles.append(detector_response.angles[seen])
+    n_a = max(a.size for a in angles)
+    share = np.zeros((n_k, n_src, n_a))
+    red = np.empty((n_src, n_a, *mats[0].shape[1:]))
+    theta = np.empty((n_src, n_a))
+    for s, (h, m, a) in enumerate(zip(shares, mats, angles, strict=True)):
+        share[:, s, :a.size] = h
+        red[s] = m[0]
+        red[s, :a.size] = m
+        theta[s] = a[0]
+        theta[s, :a.size] = a
+    return share, red, theta
 
 
 def _transmission(transmission: Any, n_src: int, n_e: int) -> np.ndarray:
@@ -680,9 +771,10 @@ def extract_spectrum(
     design = np.zeros((bins.y.size, n_src))
     design[:n_on] = template.reshape(n_src, -1).T[bins.flat] * bins.value[:n_on, None]
     channel, detector = bins.group % n_c, bins.group // n_c
-    col = columns.columns[source].reshape(columns.energies.size, -1)
+    n_a, n_e = columns.columns.shape[1:3]
+    col = columns.columns[source].reshape(n_a, n_e, -1)
     rate, var = np.empty(n_c), np.empty(n_c)
-    area = np.empty((columns.energies.size, n_c))
+    area = np.empty((n_a, n_e, n_c))                 # per angle node
     for c in range(n_c):
         sel = np.flatnonzero(channel == c)
         groups = Groups(detector[sel], bins.value[sel], n_det)
@@ -691,10 +783,16 @@ def extract_spectrum(
         rate[c] = w @ bins.y[sel]
         on = sel[sel < n_on]                      # the on bins come first
         dt = bins.flat[on] // n_c                 # their (detector, time) index
-        area[:, c] = (col[:, dt] * bins.value[on]) @ w[:on.size]
-    node = area * columns.redistribution[source]
-    response = _response(columns.energies, columns.channel_edges, node,
-                         columns.redistribution[source].sum(axis=1), subdivide)
+        for a in range(n_a):
+            area[a, :, c] = (col[a][:, dt] * bins.value[on]) @ w[:on.size]
+    # Per angle node its area times its redistribution; the ARF is the sum of the nodes'
+    # (each the redistribution-weighted mean of its area), the RMF the rest.
+    per_node = area * columns.redistribution[source]
+    recorded = columns.redistribution[source].sum(axis=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        arf = np.where(recorded > 0, per_node.sum(axis=2) / recorded, 0.0).sum(axis=0)
+    response = _response(columns.energies, columns.channel_edges, per_node.sum(axis=0), arf,
+                         subdivide)
     return RateSpectrum(rate, np.sqrt(var), live, response, {"OBJECT": f"source {source}"})
 
 
@@ -722,12 +820,12 @@ def _extraction_weights(design: np.ndarray, groups: Groups, mu: np.ndarray, k: i
 
 
 def _response(nodes: np.ndarray, channel_edges: np.ndarray, node: np.ndarray,
-              recorded: np.ndarray, subdivide: int) -> SpectralResponse:
+              arf: np.ndarray, subdivide: int) -> SpectralResponse:
     """The response ``node[e, c]`` (cm^2 per photon at node ``e`` into channel ``c``) as an
     ARF and an RMF on ``subdivide`` bins per interval between nodes, linear in ``ln E`` as the
     columns are (so a model folded through them gives ``sum_e F_e node[e]`` with
-    ``F_e = node_weights``, to the bins' midpoint rule).  ``recorded[e]``: the
-    redistribution's row sum (the RMF's rows keep it)."""
+    ``F_e = node_weights``, to the bins' midpoint rule).  ``arf[e]``: the area at the nodes
+    (the RMF is ``node / arf``)."""
     if np.any(node < 0):
         e, c = np.argwhere(node < 0)[0]
         raise ParameterError(
@@ -738,8 +836,6 @@ def _response(nodes: np.ndarray, channel_edges: np.ndarray, node: np.ndarray,
     # The RMF and the interpolated areas it is made from, and a few vectors per bin.
     check_memory(8.0 * n_bins * (2 * n_c + 8), f"a response of {n_bins} energy bins x "
                  f"{n_c} channels", hint="a smaller subdivide")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        arf = np.where(recorded > 0, node.sum(axis=1) / recorded, 0.0)
     ln = np.log(nodes)
     frac = np.arange(subdivide + 1)[:-1] / subdivide
     edges = np.exp(np.append((ln[:-1, None] + np.diff(ln)[:, None] * frac).ravel(), ln[-1]))

@@ -543,6 +543,18 @@ class DetectorResponse:
         f = f[:, None, None]
         return (1 - f) * self.matrix[i] + f * self.matrix[j]
 
+    def angle_weights(self, theta: Any) -> np.ndarray:
+        """The weights of the tabulated angles in :meth:`matrix_at`: ``h[n, a]`` with
+        ``matrix_at(theta)[n] = sum_a h[n, a] matrix[a]`` (the hat functions of linear
+        interpolation in ``theta``: two non-zero weights summing to 1 per angle), shape
+        ``(n_theta, n_angles)``."""
+        i, j, f, _ = self._weights(theta)
+        h = np.zeros((f.size, self.angles.size))
+        rows = np.arange(f.size)
+        np.add.at(h, (rows, i), 1.0 - f)
+        np.add.at(h, (rows, j), f)
+        return h
+
     def counts_per_photon(self, theta: Any) -> np.ndarray:
         """Expected counts per channel per photon crossing the top face's area with no mask:
         ``interaction_at x matrix_at``, shape ``(n_theta, n_energies, n_channels)``."""

@@ -34,7 +34,10 @@ Approximations, stated: the redistribution of a detector is the one of a uniform
 (the mask's shadow changes which part of the crystal is lit, which changes the escape
 probabilities slightly); between nodes the columns and the redistribution are taken as linear
 in ``ln E`` (keep the nodes closer than the resolution's FWHM; docs/spectra.md measures the
-effect of the spacing).
+effect of the spacing), and the redistribution as linear in ``theta`` between its tabulated
+angles.  A drifting observation, which sees a source at another ``theta`` in each attitude
+interval, is a sum over those angles with the same interpolation (:class:`SpectralColumns`;
+docs/spectra.md, "A drifting observation").
 """
 
 from __future__ import annotations
@@ -736,7 +739,8 @@ def extract_spectrum(
     RateSpectrum
         ``rate`` and ``error`` (counts/s) per channel, ``exposure`` the mean live time of a
         detector (s), and the response (ARF: the redistribution-weighted mean of the
-        column-weighted area; RMF: redistribution times the column-weighted area over it).
+        column-weighted area, summed over a drift's angle nodes; RMF: redistribution times
+        the column-weighted area over it).
     """
     if not isinstance(columns, SpectralColumns):
         raise ParameterError(f"columns must be SpectralColumns, got {type(columns).__name__}")

@@ -184,7 +184,9 @@ def test_bad_input_is_refused(setup, drift) -> None:
                          interval_transmission=np.ones((4, 2, 7)))
     with pytest.raises(ParameterError, match="one attitude each"):
         spectral_columns(drift, SOURCES, table, transmission=np.ones((3, 2, 7)))
-    with pytest.raises(ParameterError, match=r"\[0, 1\]"):
+    with pytest.raises(ParameterError, match="interval_transmission must broadcast"):
+        spectral_columns(drift, SOURCES, table, interval_transmission=np.ones((4, 2, 5)))
+    with pytest.raises(ParameterError, match=r"interval_transmission must lie in \[0, 1\]"):
         spectral_columns(drift, SOURCES, table, interval_transmission=np.full((4, 2, 7), 2.0))
     with pytest.raises(ParameterError, match="columns must have shape"):
         SpectralColumns(np.ones((1, 7, 3, N_T)), np.ones((1, 7, 8)), NODES, CHANNELS,

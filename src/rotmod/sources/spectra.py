@@ -218,15 +218,17 @@ def spectral_columns(
         if transmission is not None:
             raise ParameterError("give transmission or interval_transmission, not both "
                                  "(fold any common factor into interval_transmission)")
-        per_k = _transmission(interval_transmission, n_src, nodes.size)
-        if per_k.ndim != 3 or per_k.shape[0] != n_k:
+        got = np.shape(interval_transmission)
+        if len(got) != 3 or got[0] != n_k:
             raise ParameterError(
                 f"interval_transmission must have shape (n_intervals, n_sources, n_energies)"
                 f" = {(n_k, n_src, nodes.size)} (one per attitude interval of the response), "
-                f"got {np.shape(interval_transmission)}")
+                f"got {got}")
+        per_k = _transmission(interval_transmission, n_src, nodes.size,
+                              "interval_transmission")
     share, red, node_theta = _angle_nodes(thetas, detector_response)
     n_det, n_t = response.n_det, response.n_time
-    check_memory(8.0 * share.size * nodes.size * n_det * n_t,
+    check_memory(8.0 * n_src * share.shape[2] * nodes.size * n_det * n_t,
                  f"the columns of {n_src} sources at {share.shape[2]} angle nodes and "
                  f"{nodes.size} energies",
                  hint="tabulate the detector response at fewer energies")
@@ -286,21 +288,22 @@ def _angle_nodes(thetas: np.ndarray, detector_response: DetectorResponse
     return share, red, theta
 
 
-def _transmission(transmission: Any, n_src: int, n_e: int) -> np.ndarray:
+def _transmission(transmission: Any, n_src: int, n_e: int, name: str = "transmission"
+                  ) -> np.ndarray:
     """``transmission`` as ``(n_src, n_e)``, or ``(n_slice, n_src, n_e)`` for time slices;
-    a ParameterError names the rule broken."""
+    a ParameterError names the parameter (``name``) and the rule broken."""
     trans = np.asarray(transmission, dtype=float)
     want = (n_src, n_e)
     try:
         trans = np.broadcast_to(trans, trans.shape[:1] + want if trans.ndim == 3 else want)
     except ValueError:
-        raise ParameterError(f"transmission must broadcast to (n_sources, n_energies) = "
+        raise ParameterError(f"{name} must broadcast to (n_sources, n_energies) = "
                              f"{want}, or be (n_slices, n_sources, n_energies) for a flight's "
                              f"time slices, got shape {np.shape(transmission)}") from None
     if not np.all((trans >= 0) & (trans <= 1)):
-        raise ParameterError("transmission must lie in [0, 1] (a fraction of photons)")
+        raise ParameterError(f"{name} must lie in [0, 1] (a fraction of photons)")
     if trans.ndim == 3 and trans.shape[0] < 1:
-        raise ParameterError("transmission must hold one or more time slices")
+        raise ParameterError(f"{name} must hold one or more time slices")
     return np.array(trans)
 
 

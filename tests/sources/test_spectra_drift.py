@@ -114,8 +114,9 @@ def test_drift_is_the_weighted_sum_of_its_intervals(setup, drift, with_air) -> N
     interval's attitude (their redistribution ``matrix_at(theta_k)``) weighted bin by bin
     by the interval's share of the bin's exposure -- with a transmission per interval too
     (a zenith-pointed balloon: each source's zenith changes; applied to each interval's
-    columns as ``spectral_columns`` applies one).  The sources cross tabulated angles (3,
-    6 and 10 deg) during the drift.  1e-10: the identity is exact, rounding only."""
+    columns as ``spectral_columns`` applies one).  The sources cross tabulated angles (at
+    1.1-5.0 and 1.4-8.0 deg: 3 and 6 deg) during the drift.  1e-10: the identity is
+    exact, rounding only."""
     _, table, _ = setup
     response, cols, singles = drift
     air = None

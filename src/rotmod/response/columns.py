@@ -112,10 +112,11 @@ def columns_at(response: ResponseOperator, positions: Any, *, energy: Any = None
 
 
 def component_columns(response: ResponseOperator, positions: Any, *, energy: Any = None
-                      ) -> list[np.ndarray]:
+                      ) -> Iterator[np.ndarray]:
     """The columns of each of the response's components (:meth:`ResponseOperator.components`,
     one per attitude interval of a drifting observation), each times its weights: their sum
-    is :func:`columns_at`.
+    is :func:`columns_at`.  Yielded one by one, so that a consumer summing them holds one
+    interval's columns at a time (a day's flight has thousands of intervals).
 
     Parameters
     ----------
@@ -123,12 +124,11 @@ def component_columns(response: ResponseOperator, positions: Any, *, energy: Any
         As :func:`columns_at` (a response that is a sum of folded ones: not an
         :class:`~rotmod.response.UnfoldedResponse`).
 
-    Returns
-    -------
-    list of ndarray, shape (n_det, n_time, n_positions)
+    Yields
+    ------
+    ndarray, shape (n_det, n_time, n_positions)
         In the order of ``response.components()``.
     """
-    out = []
     for weights, spec in response.components():
         points = position_grid(spec.grid, positions)
         with _threads_for(response.n_det * response.n_time * points.size):
@@ -138,8 +138,7 @@ def component_columns(response: ResponseOperator, positions: Any, *, energy: Any
             part = build_response(at).matrix
         if weights is not None:
             part = part * np.asarray(weights, dtype=float)[None, :, None]
-        out.append(np.asarray(part, dtype=np.float64))
-    return out
+        yield np.asarray(part, dtype=np.float64)
 
 
 def _deg(q: Any) -> np.ndarray:

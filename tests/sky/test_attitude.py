@@ -118,22 +118,31 @@ def test_a_table_serves_exactly_its_span_and_refuses_past_it(t0) -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(t0=st.floats(-1e9, 1e9), frac=st.floats(-0.5, 1.5))
-@example(t0=0.0, frac=1.0).via("the end sample of a table from 0")
-@example(t0=0.0, frac=0.0).via("the first sample")
-def test_at_answers_exactly_within_the_samples(t0, frac) -> None:
-    """at(t) answers iff the samples cover t (to round-off), for tables from any epoch."""
+@given(t0=st.floats(-1e9, 1e9), edge=st.sampled_from(["first", "last"]),
+       k=st.floats(-3.0, 3.0).filter(lambda k: abs(abs(k) - 1.0) > 0.05))
+@example(t0=0.0, edge="last", k=0.0).via("the end sample of a table from 0")
+@example(t0=0.0, edge="first", k=0.0).via("the first sample")
+def test_at_answers_exactly_within_the_samples(t0, edge, k) -> None:
+    """at(t) answers iff t is within round-off of the samples, for tables from any epoch:
+    times k tolerances from an end sample (|k| up to 3, away from the boundary |k| = 1 by
+    5 %, where the sum's own rounding decides), inside for k >= -1 at the first and k <= 1
+    at the last."""
     table = _aspect(t0)
     lo, hi = table.span
-    t = lo + frac * (hi - lo)
-    inside = lo - table.tolerance <= t <= hi + table.tolerance
-    assert table.covers(t) is inside
+    t = (lo if edge == "first" else hi) + k * table.tolerance
+    inside = k >= -1.0 if edge == "first" else k <= 1.0
     if inside:
         table.at(t)
     else:
         with pytest.raises(ParameterError, match="outside its samples the attitude is "
                                                  "unknown"):
             table.at(t)
+
+
+def test_covers_refuses_a_reversed_span() -> None:
+    table = _aspect(0.0)
+    with pytest.raises(ParameterError, match="t_stop must be >= t_start"):
+        table.covers(1e12, 0.0)
 
 
 def test_times_through_a_double_mjd_are_covered_despite_round_off() -> None:

@@ -23,6 +23,7 @@ from rotmod.energy import EnergyResolution
 from rotmod.energy import PowerLaw as PhotonPowerLaw
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray, Mask
+from rotmod.limits import TimeBudgetError
 from rotmod.materials import Material
 from rotmod.montecarlo import simulate_channel_counts, simulate_profiles
 from rotmod.response import build_response
@@ -164,6 +165,8 @@ def test_drawn_deposits_follow_the_tabulated_redistribution() -> None:
     assert np.all((d >= 0) & (d <= LINE * (1 + 1e-9)))
     mixed = draw_deposits(det, [100.0, 2000.0] * 10, THETA, seed=1)
     assert np.all(mixed[0::2] <= 100.0 * (1 + 1e-9))
+    # ... and each photon has its own energy: 2 MeV photons deposit more than 100 keV.
+    assert np.any(mixed[1::2] > 100.0)
 
 
 def test_per_source_energies_set_each_sources_attenuation() -> None:
@@ -204,3 +207,21 @@ def test_chain_bad_input(chain) -> None:
                                 resolution=0.07)
     with pytest.raises(ParameterError, match="energies"):
         draw_deposits(inst.detectors, [-1.0], THETA)
+
+
+def test_draw_deposits_refuses_hopeless_analog_work_and_takes_read_only_energies(
+        monkeypatch) -> None:
+    """Drawn until one interacts, a photon costs ~1/P primaries: a 10 um crystal at 20 MeV
+    (P ~ 1.2e-4) with 1e5 photons is ~8.5e8 primaries, ~30 s at the Monte Carlo's rate --
+    refused under a 1 s budget before it starts, naming the parameter; a read-only energies
+    array (as PointSources hold) gives the same deposits as a writable one."""
+    monkeypatch.setenv("ROTMOD_TIME_BUDGET", "1s")
+    thin = DetectorArray([[0.0, 0.0]], 5.0, thickness=1e-3, material=NAI)
+    with pytest.raises(TimeBudgetError, match="energies"):
+        draw_deposits(thin, np.full(100_000, 20_000.0), 0.0)
+    monkeypatch.delenv("ROTMOD_TIME_BUDGET")
+    det = DetectorArray([[0.0, 0.0]], 5.0, thickness=5.0, material=NAI)
+    ro = np.full(50, 662.0)
+    ro.flags.writeable = False
+    np.testing.assert_array_equal(draw_deposits(det, ro, 10.0, seed=3),
+                                  draw_deposits(det, ro.copy(), 10.0, seed=3))

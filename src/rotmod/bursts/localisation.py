@@ -213,7 +213,13 @@ def bin_events(events: EventList, t_start: Any, t_stop: Any, *,
         # The attitude is needed where there is good time: the bins' edges widen the window
         # to mask-angle boundaries, past the data (and a table covering them) at its ends.
         good = hi > lo
-        pieces = att.intervals(float(lo[good].min()), float(hi[good].max()), max_step)
+        g0, g1 = float(lo[good].min()), float(hi[good].max())
+        try:
+            pieces = att.intervals(g0, g1, max_step)
+        except ParameterError as exc:
+            raise ParameterError(
+                f"attitude: the window's good time, widened to whole mask-angle bins "
+                f"({g0:.12g} .. {g1:.12g} s), needs the attitude: {exc}") from None
         cuts = np.array([p[1] for p in pieces[:-1]])
         segment = np.searchsorted(cuts, centres, side="right").astype(np.int64)
         attitudes = tuple(p[2] for p in pieces)

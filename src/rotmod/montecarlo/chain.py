@@ -33,7 +33,7 @@ from rotmod.energy import EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument
 from rotmod.montecarlo.simulate import simulate_profiles
-from rotmod.spectral.detector import draw_deposits
+from rotmod.spectral.detector import ENERGY_RANGE_KEV, draw_deposits
 from rotmod.spectral.spectrum import check_edges
 
 __all__ = ["ChannelCounts", "simulate_channel_counts"]
@@ -139,7 +139,10 @@ def simulate_channel_counts(
     angles = np.degrees(as_angle(xi if xi_edges is None else xi_edges,
                                  "xi" if xi_edges is None else "xi_edges", ndim=1))
     where_xi = {"xi": angles} if xi_edges is None else {"xi_edges": angles}
-    e = np.asarray(as_energy(energies, "energies", ndim=1), dtype=float)
+    # The transport's range, checked here: inside draw_deposits it would come after a
+    # batch of the instrument Monte Carlo, and never for a batch with no photon counted.
+    e = np.asarray(as_energy(energies, "energies", lo=ENERGY_RANGE_KEV[0],
+                             hi=ENERGY_RANGE_KEV[1], ndim=1), dtype=float)
     if e.size == 0:
         raise ParameterError("energies must hold at least one photon energy, got none")
     ch = check_edges(channel_edges, "channel_edges")
@@ -153,6 +156,10 @@ def simulate_channel_counts(
     if det.thickness <= 0 or det.material is None:
         raise ParameterError("instrument.detectors must have a thickness > 0 cm and a material "
                              "for a detector transport (a flat face has no energy response)")
+    if det.material.mass_attenuation is not None:
+        raise ParameterError("instrument.detectors.material.mass_attenuation must be None: a "
+                             "fixed coefficient has no split into photoabsorption, scattering "
+                             "and pair production for the transport")
     n_det, n_c = len(det), ch.size - 1
     n_t = angles.size - (xi_edges is not None)
     counts = np.zeros(n_det * n_t * n_c, dtype=np.int64)

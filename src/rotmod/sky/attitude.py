@@ -239,11 +239,13 @@ class AttitudeTable:
         Raises
         ------
         ParameterError
-            A time not finite.
+            A time not finite, or ``t_stop < t_start``.
         """
         lo, hi = self.span
         t0 = as_scalar(t_start, "t_start", u.s)
         t1 = t0 if t_stop is None else as_scalar(t_stop, "t_stop", u.s)
+        if t1 < t0:
+            raise ParameterError(f"t_stop must be >= t_start, got {t0:g} .. {t1:g} s")
         return bool(t0 >= lo - self.tolerance and t1 <= hi + self.tolerance)
 
     def _check_covers(self, name: str, t_start: float, t_stop: float) -> None:

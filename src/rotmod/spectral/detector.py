@@ -52,6 +52,7 @@ from rotmod._validate import as_angle, as_angle_scalar, as_energy, as_int, as_sc
 from rotmod.energy import FWHM_PER_SIGMA, EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.geometry import DetectorArray
+from rotmod.limits import check_time
 from rotmod.materials import DATABASE_RANGE_KEV, mass_fractions, partial_attenuation
 from rotmod.spectral import _detector_kernels as _k
 from rotmod.spectral.spectrum import check_edges
@@ -670,7 +671,9 @@ def draw_deposits(
         Deposited energies (keV), shape ``(n,)``, each in ``[0, energies[i]]``.
     """
     det = _check_detector(detectors)
-    e = np.ascontiguousarray(_check_energy(energies, "energies"), dtype=float)
+    # A copy: a read-only array (e.g. PointSources.energy) is another type to numba, and
+    # would compile the kernel a second time.
+    e = np.array(_check_energy(energies, "energies"), dtype=np.float64, order="C")
     if e.size > MAX_PHOTONS:
         raise ParameterError(f"energies must hold at most {MAX_PHOTONS} photons, got {e.size}")
     th = as_angle_scalar(theta, "theta", lo=0.0, hi=90.0, hi_open=True)
@@ -680,6 +683,19 @@ def draw_deposits(
     if e.size == 0:
         return out
     med = _medium(det, float(e.max()))
+    # Each photon costs ~1/P primaries (analog: drawn until one interacts), P = 1 -
+    # exp(-mu l) with l the mean chord of the lit cylinder (volume / projected area,
+    # Cauchy); by Jensen that P is an upper bound, so the estimate is a lower bound.  A
+    # primary that does not interact costs about one Monte Carlo photon through a geometry.
+    chord = (det.radius * det.thickness * math.pi
+             / (math.pi * det.radius * math.cos(th) + 2.0 * det.thickness * math.sin(th)))
+    p_hit = -np.expm1(-np.asarray(det.material.linear_attenuation(e), dtype=float) * chord)
+    check_time(float(np.sum(1.0 / np.maximum(p_hit, 1e-300))), "mc_photons",
+               f"energies: {e.size} photons interacting in a detector {det.thickness:g} cm "
+               f"thick (down to {float(p_hit.min()):.2g} of the primaries interact, so each "
+               "photon needs up to "
+               f"{1.0 / max(float(p_hit.min()), 1e-300):.3g} primaries)",
+               hint="fewer photons, or a thicker detector")
     m = min(_N_CHUNKS, e.size)
     bounds = np.linspace(0, e.size, m + 1).round().astype(np.int64)
     _k.draw_kernel(chunk_states(seed_sequence(seed), m), bounds, e, math.sin(th),

@@ -12,6 +12,7 @@ from rotmod.binning import TimeBinning
 from rotmod.bursts import (
     analyse_burst,
     analysis,
+    burst_light_curve,
     durations,
     fit_background,
     norris_pulse,
@@ -22,6 +23,7 @@ from rotmod.bursts import (
 from rotmod.bursts.localisation import (
     _background_rates,
     bin_events,
+    burst_pulses,
     burst_response,
     default_time_bins,
     search_map,
@@ -33,7 +35,7 @@ from rotmod.montecarlo import simulate_observation
 from rotmod.sky import Attitude, PointSources
 from rotmod.sky.points import DirectionList, PositionList
 from rotmod.sources.fitting import SourceFitter
-from rotmod.sources.model import SkyModel
+from rotmod.sources.model import PointSource, SkyModel
 
 #: A small, fast RM: 7 detectors of 5 cm under 3/3/3 cm lead 30 cm up (b/L = 5.7 deg), a
 #: 2 s turn, so that a few-second burst varies within a rotation.
@@ -210,3 +212,35 @@ def test_durations_window_reaches_twice_the_burst_or_falls_back_to_the_fit_windo
     *_, dur2, dur_window2 = analysis._measurements(ev, 50.0, 55.0, 1)
     assert calls == [dur_window, window] and dur_window2 == window
     assert dur2 == durations(ev, window, bkg, light_curve=lc)
+
+
+def test_the_number_of_pulses_is_chosen_seen_from_the_position():
+    # One Norris pulse 50 deg off axis: the summed rate of a unit flux there swings with the
+    # mask's turn, and seen from no position (response 1, as for the score map) that swing
+    # is fitted as a second pulse; fitted afresh through the summed response at the truth,
+    # one pulse is enough.  Refined from the position-free fit the number stays 2; with
+    # search=True (what each climb does at its start and end) the fresh fit wins on the
+    # penalised likelihood (ln L - add_ts / 2 per pulse, fit_pulses's own rule for adding
+    # one).  Measured on seeds 11-13: 2 pulses from nowhere, 1 seen from the truth, each.
+    theta = 50.0
+    truth = ATT.to_sky(theta * u.deg, 130.0 * u.deg)
+    ev = simulate_burst(INST, truth, lambda t: norris_pulse(t, 50.0, 0.3, 2.0, 60.0),
+                        t_start=0.0, t_stop=120.0, background=2.0, energy=ENERGY,
+                        attitude=ATT, seed=12)
+    bkg = fit_background(ev, [(10.0, 45.0), (70.0, 110.0)])
+    lc = burst_light_curve(ev, (45.0, 70.0), bkg)
+    c = bin_events(ev, 45.0, 70.0, time_bins=default_time_bins(INST, theta + 5.0),
+                   attitude=ATT)
+    unit = burst_response(c, lambda att: PositionList.from_coords(c.first_attitude.pointing,
+                                                                  att), energy=ENERGY)
+    src = PointSource(truth)
+    nowhere = burst_pulses(lc, c, bkg)
+    refined = burst_pulses(lc, c, bkg, unit, src, nowhere)
+    chosen = burst_pulses(lc, c, bkg, unit, src, nowhere, search=True)
+    assert len(nowhere.pulses) >= 2
+    assert len(refined.pulses) == len(nowhere.pulses)
+    assert len(chosen.pulses) == 1
+    assert chosen.penalised_loglike > refined.penalised_loglike
+    # The penalty is fit_pulses's threshold for a pulse: half of add_ts per pulse.
+    assert refined.loglike - refined.penalised_loglike == pytest.approx(
+        0.5 * refined.family.add_ts * len(refined.pulses))

@@ -441,11 +441,19 @@ def _summed(counts: BurstCounts, background: Background, unit: UnfoldedResponse 
 
 def burst_pulses(light_curve: BurstLightCurve, counts: BurstCounts, background: Background,
                  unit: UnfoldedResponse | None = None, source: PointSource | None = None,
-                 start: PulseLightCurve | None = None) -> PulseLightCurve:
+                 start: PulseLightCurve | None = None, search: bool = False
+                 ) -> PulseLightCurve:
     """The burst's light curve in the bins of ``counts``: pulses fitted to the
     detector-summed counts (:func:`rotmod.bursts.pulses.fit_pulses`, its default family),
     seen from ``source`` through ``unit`` (weight 1) when given, refined from ``start``
     when given.
+
+    With ``start`` and ``search``, the pulses are also found afresh as seen from
+    ``source`` (their number chosen there), and whichever of the two fits has the higher
+    :attr:`~rotmod.bursts.pulses.PulseLightCurve.penalised_loglike` is returned: a fit
+    refined from ``start`` keeps its number of pulses, and ``start``'s number, chosen seen
+    from elsewhere, may be wrong here (seen from no position, the mask's modulation of an
+    off-axis burst's summed rate is fitted as extra pulses: ``docs/bursts.md``).
 
     Seen from a position, the summed rate of a unit flux there (the response summed over
     the detectors) carries the mask's modulation of the summed transmission -- its rms is
@@ -455,7 +463,11 @@ def burst_pulses(light_curve: BurstLightCurve, counts: BurstCounts, background: 
     placed 68 deg away).
     """
     edges, y, b, e, r = _summed(counts, background, unit, source)
-    return fit_pulses(edges, y, b, e, light_curve, r, start)
+    refined = fit_pulses(edges, y, b, e, light_curve, r, start)
+    if start is None or not search:
+        return refined
+    fresh = fit_pulses(edges, y, b, e, light_curve, r, family=start.family)
+    return fresh if fresh.penalised_loglike > refined.penalised_loglike else refined
 
 
 def pulse_misfit(light_curve: BurstLightCurve, counts: BurstCounts, background: Background,
@@ -631,17 +643,18 @@ def localise_burst(
     coords = score.grid.sky_coords()[peaks]
 
     def seen_from(src: PointSource, c: BurstCounts, u_c: UnfoldedResponse,
-                  d_c: PoissonData, start: PulseLightCurve | None = None
-                  ) -> tuple[SourceFitter, PulseLightCurve | None]:
+                  d_c: PoissonData, start: PulseLightCurve | None = None,
+                  search: bool = False) -> tuple[SourceFitter, PulseLightCurve | None]:
         """The fitter of a source at ``src``, its light curve seen from there (refined
-        from ``start``, default the search's pulses), and those pulses (a given light
-        curve is the same from everywhere: the search's fitter and its columns are
+        from ``start``, default the search's pulses; with ``search`` also found afresh
+        from there and the better kept, :func:`burst_pulses`), and those pulses (a given
+        light curve is the same from everywhere: the search's fitter and its columns are
         shared)."""
         if pulses is None:
             return (null_fitter if c is counts
                     else SourceFitter(u_c.with_weight(weights(c)), d_c)), None
         lc = burst_pulses(light_curve, c, background, u_c, src,
-                          pulses if start is None else start)
+                          pulses if start is None else start, search)
         return SourceFitter(u_c.with_weight(lc.shape(c.edges)), d_c), lc
 
     peak_ll = np.array([seen_from(PointSource(c), counts, unit, data)[0].maximise(
@@ -662,12 +675,17 @@ def localise_burst(
               ) -> tuple[SkyModel, float, SourceFitter, PulseLightCurve | None]:
         """Nelder-Mead from ``src``, with the light curve seen from there; then, with
         pulses, the light curve seen from where the climb ended and a second climb (the
-        pulses held during a climb are those of its start, a pixel or more away)."""
-        f, lc = seen_from(src, fine, fine_unit, fine_data)
+        pulses held during a climb are those of its start, a pixel or more away).  At
+        both places the pulses are also found afresh (their number chosen as seen from
+        there, not from nowhere: the search's pulses take an off-axis burst's modulation
+        as extra pulses), and the better by the penalised likelihood kept; the score
+        map's peaks only refine the search's pulses (16 fresh searches would cost more
+        than the climbs)."""
+        f, lc = seen_from(src, fine, fine_unit, fine_data, search=True)
         m = f.maximise(SkyModel((dataclasses.replace(src, free_position=True),)))[0]
         m = f.fit_positions(m, scale=0.5 * pixel, precision=CLIMB_PRECISION)
         if lc is not None:
-            f, lc = seen_from(m.sources[0], fine, fine_unit, fine_data, lc)
+            f, lc = seen_from(m.sources[0], fine, fine_unit, fine_data, lc, search=True)
             m = f.fit_positions(f.maximise(m)[0], scale=0.5 * pixel,
                                 precision=CLIMB_PRECISION)
         return m, f.maximise(m)[1].loglike, f, lc

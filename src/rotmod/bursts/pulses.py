@@ -284,6 +284,18 @@ class PulseLightCurve:
     loglike: float
     family: PulseFamily = FAMILIES["peaked"]
 
+    @property
+    def penalised_loglike(self) -> float:
+        """``ln L - (add_ts / 2) n_pulses``: what :func:`fit_pulses` climbs when it adds
+        pulses.
+
+        A further pulse is kept when it gains ``2 delta ln L >= add_ts``
+        (:attr:`PulseFamily.add_ts`), i.e. when it raises this quantity; so two fits of the
+        same counts with different numbers of pulses (one refined from another position's,
+        one found afresh) are compared by it with the rule that chose each fit's number.
+        """
+        return float(self.loglike - 0.5 * self.family.add_ts * len(self.pulses))
+
     def rate(self, t: np.ndarray) -> np.ndarray:
         """``L(t)``: the pulses' sum at times ``t`` (s)."""
         t = np.asarray(t, dtype=float)

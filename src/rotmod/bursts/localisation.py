@@ -643,18 +643,17 @@ def localise_burst(
     coords = score.grid.sky_coords()[peaks]
 
     def seen_from(src: PointSource, c: BurstCounts, u_c: UnfoldedResponse,
-                  d_c: PoissonData, start: PulseLightCurve | None = None,
-                  search: bool = False) -> tuple[SourceFitter, PulseLightCurve | None]:
+                  d_c: PoissonData, start: PulseLightCurve | None = None
+                  ) -> tuple[SourceFitter, PulseLightCurve | None]:
         """The fitter of a source at ``src``, its light curve seen from there (refined
-        from ``start``, default the search's pulses; with ``search`` also found afresh
-        from there and the better kept, :func:`burst_pulses`), and those pulses (a given
-        light curve is the same from everywhere: the search's fitter and its columns are
+        from ``start``, default the search's pulses), and those pulses (a given light
+        curve is the same from everywhere: the search's fitter and its columns are
         shared)."""
         if pulses is None:
             return (null_fitter if c is counts
                     else SourceFitter(u_c.with_weight(weights(c)), d_c)), None
         lc = burst_pulses(light_curve, c, background, u_c, src,
-                          pulses if start is None else start, search)
+                          pulses if start is None else start)
         return SourceFitter(u_c.with_weight(lc.shape(c.edges)), d_c), lc
 
     peak_ll = np.array([seen_from(PointSource(c), counts, unit, data)[0].maximise(
@@ -670,22 +669,27 @@ def localise_burst(
         fine_bins = default_time_bins(inst, min(reach + FINE_MARGIN, rad))
     fine, fine_unit, fine_data = ((counts, unit, data) if fine_bins == search_bins
                                   else binned(fine_bins))
+    # The number of pulses chosen as seen from the most likely start: the search's pulses,
+    # seen from no position, take an off-axis burst's modulation as extra pulses (21 of 48
+    # gauss-exp calibration bursts), so they are found afresh from there and kept if that
+    # fit is the better by the penalised likelihood (burst_pulses(search=True)).  Once,
+    # not at every climb's start and end: ten fresh searches made a calibration burst's
+    # analysis 3-4.5x as long (docs/bursts.md).
+    chosen = (None if pulses is None else
+              burst_pulses(light_curve, fine, background, fine_unit, PointSource(starts[0]),
+                           pulses, search=True))
 
     def climb(src: PointSource
               ) -> tuple[SkyModel, float, SourceFitter, PulseLightCurve | None]:
-        """Nelder-Mead from ``src``, with the light curve seen from there; then, with
-        pulses, the light curve seen from where the climb ended and a second climb (the
-        pulses held during a climb are those of its start, a pixel or more away).  At
-        both places the pulses are also found afresh (their number chosen as seen from
-        there, not from nowhere: the search's pulses take an off-axis burst's modulation
-        as extra pulses), and the better by the penalised likelihood kept; the score
-        map's peaks only refine the search's pulses (16 fresh searches would cost more
-        than the climbs)."""
-        f, lc = seen_from(src, fine, fine_unit, fine_data, search=True)
+        """Nelder-Mead from ``src``, with the light curve seen from there (refined from
+        ``chosen``, its number of pulses kept); then, with pulses, the light curve seen
+        from where the climb ended and a second climb (the pulses held during a climb are
+        those of its start, a pixel or more away)."""
+        f, lc = seen_from(src, fine, fine_unit, fine_data, chosen)
         m = f.maximise(SkyModel((dataclasses.replace(src, free_position=True),)))[0]
         m = f.fit_positions(m, scale=0.5 * pixel, precision=CLIMB_PRECISION)
         if lc is not None:
-            f, lc = seen_from(m.sources[0], fine, fine_unit, fine_data, lc, search=True)
+            f, lc = seen_from(m.sources[0], fine, fine_unit, fine_data, lc)
             m = f.fit_positions(f.maximise(m)[0], scale=0.5 * pixel,
                                 precision=CLIMB_PRECISION)
         return m, f.maximise(m)[1].loglike, f, lc

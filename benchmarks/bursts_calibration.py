@@ -317,7 +317,10 @@ def report(data: dict) -> str:
         L.append(f"  light-curve dispersion (TS divided by): median {np.median(disp):.2f}, "
                  f"> 1 in {int(np.sum(disp > 1))}/{disp.size}, > 1.5 in "
                  f"{int(np.sum(disp > 1.5))}, max {disp.max():.2f}; median r90 / r90 "
-                 f"without it {np.median([r['r90'] / r['raw_r90'] for r in infl]):.3f}")
+                 f"without it "
+                 f"{np.median([r['r90'] / r['raw_r90'] for r in infl if r['raw_r90'] > 0]):.3f}"
+                 f" (raw r90 0, a region of the square's one point: "
+                 f"{sum(r['raw_r90'] <= 0 for r in infl)})")
         nu = np.array([p[3:5] for r in infl if r.get("pulse_family") == "peaked"
                        for p in r["pulses"]])
         if nu.size:

@@ -127,6 +127,13 @@ class _Medium:
     edges: tuple[float, ...]
     jumps: tuple[float, ...]
 
+    def total(self, energy: np.ndarray) -> np.ndarray:
+        """Total linear coefficient (1/cm) at ``energy`` (keV): the kernels' ``_mu_total``
+        (the processes' columns interpolated linearly on the ``ln E`` grid, held at its
+        ends), for many energies at once."""
+        x = (np.log(energy) - self.ln0) * self.inv_dln
+        return np.interp(x, np.arange(self.table.shape[0]), self.table[:, :4].sum(axis=1))
+
 
 def _elements(name: str) -> list[str]:
     """Element symbols of the material ``name`` (a formula, an element or an alias such as
@@ -687,9 +694,11 @@ def draw_deposits(
     # exp(-mu l) with l the mean chord of the lit cylinder (volume / projected area,
     # Cauchy); by Jensen that P is an upper bound, so the estimate is a lower bound.  A
     # primary that does not interact costs about one Monte Carlo photon through a geometry.
+    # mu is the transport's own (its table, interpolated as the kernel does: cheap beside
+    # the database's, on the chain's every batch).
     chord = (det.radius * det.thickness * math.pi
              / (math.pi * det.radius * math.cos(th) + 2.0 * det.thickness * math.sin(th)))
-    p_hit = -np.expm1(-np.asarray(det.material.linear_attenuation(e), dtype=float) * chord)
+    p_hit = -np.expm1(-med.total(e) * chord)
     check_time(float(np.sum(1.0 / np.maximum(p_hit, 1e-300))), "mc_photons",
                f"energies: {e.size} photons interacting in a detector {det.thickness:g} cm "
                f"thick (down to {float(p_hit.min()):.2g} of the primaries interact, so each "

@@ -132,3 +132,31 @@ def test_refinement_refusals(case) -> None:
     bare = MaterialisedResponse(np.ones((2, 4, 3)))  # a matrix from elsewhere: no grid
     with pytest.raises(ParameterError, match="SkyGrid"):
         reconstruct(bare, np.ones((2, 4)), coarse=2)
+
+
+def test_screening_grows_the_support_and_leaves_the_result_to_the_method(case) -> None:
+    """Short SGP fits grow the support from one that misses the second source; the result
+    is then exactly the method's solve on the grown support, and its own check passes."""
+    radon, counts = case
+    resp = radon.materialise()
+    data = as_data(counts, exposure=400.0, background=1.0)
+    support = np.zeros((16, 16), dtype=bool)
+    support[4:9, 5:10] = True  # the first source only
+    stop = StoppingRule(max_iter=300, chi2_dof=None, rel_tol=None)
+    res, rounds = _refine(resp, data, SGP, support,
+                          Refinement(factor=4, screen_iterations=30), stopping=stop)
+    kinds = [r.kind for r in rounds]
+    assert kinds[0] == "screen" and rounds[0].added > 0 and support[12, 3]
+    assert kinds[-1] == "solve" and "screen" not in kinds[kinds.index("solve"):]
+    assert rounds[-1].max_ts_outside <= 25.0
+    # The same solve started afresh on the final support: bit for bit (SGP is deterministic).
+    alone = SGP(PixelSubset(resp, np.flatnonzero(support.ravel())), data, stopping=stop).run()
+    np.testing.assert_array_equal(res.image, alone.image)
+    # Without screening every round is the method's, and it ends on the same sources.
+    support0 = np.zeros((16, 16), dtype=bool)
+    support0[4:9, 5:10] = True
+    _, rounds0 = _refine(resp, data, SGP, support0,
+                         Refinement(factor=4, screen_iterations=0), stopping=stop)
+    assert {r.kind for r in rounds0} == {"solve"} and support0[12, 3]
+    with pytest.raises(ParameterError, match=r"coarse\.screen_iterations"):
+        Refinement(screen_iterations=-1)

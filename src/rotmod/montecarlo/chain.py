@@ -33,7 +33,11 @@ from rotmod.energy import EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument
 from rotmod.montecarlo.simulate import simulate_profiles
-from rotmod.spectral.detector import ENERGY_RANGE_KEV, draw_deposits
+from rotmod.spectral.detector import (
+    ENERGY_RANGE_KEV,
+    check_energy_detectors,
+    draw_deposits,
+)
 from rotmod.spectral.spectrum import check_edges
 
 __all__ = ["ChannelCounts", "simulate_channel_counts"]
@@ -152,14 +156,7 @@ def simulate_channel_counts(
     if rayleigh not in ("thomson", "forward"):
         raise ParameterError(f"rayleigh must be 'thomson' or 'forward', got {rayleigh!r}")
     batch = as_int(batch, "batch", 1)
-    det = instrument.detectors
-    if det.thickness <= 0 or det.material is None:
-        raise ParameterError("instrument.detectors must have a thickness > 0 cm and a material "
-                             "for a detector transport (a flat face has no energy response)")
-    if det.material.mass_attenuation is not None:
-        raise ParameterError("instrument.detectors.material.mass_attenuation must be None: a "
-                             "fixed coefficient has no split into photoabsorption, scattering "
-                             "and pair production for the transport")
+    det = check_energy_detectors(instrument.detectors, "instrument.detectors")
     n_det, n_c = len(det), ch.size - 1
     n_t = angles.size - (xi_edges is not None)
     counts = np.zeros(n_det * n_t * n_c, dtype=np.int64)

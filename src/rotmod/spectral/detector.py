@@ -63,6 +63,7 @@ __all__ = [
     "MAX_PHOTONS",
     "DepositSpectrum",
     "DetectorResponse",
+    "check_energy_detectors",
     "draw_deposits",
     "sample_klein_nishina",
     "simulate_deposits",
@@ -191,19 +192,34 @@ def _medium(det: DetectorArray, e_max: float) -> _Medium:
     return _Medium(table, ln0, 1.0 / dln, line_arr, tuple(fl), tuple(edges), tuple(jumps))
 
 
-def _check_detector(detectors: Any) -> DetectorArray:
+def check_energy_detectors(detectors: Any, name: str = "detectors") -> DetectorArray:
+    """``detectors`` if they can have an energy response (the checks every transport of
+    photons in the crystal shares), else a :class:`~rotmod.errors.ParameterError` that names
+    ``name`` and the rule.
+
+    Parameters
+    ----------
+    detectors : DetectorArray
+    name : str
+        What the caller calls them (``"instrument.detectors"``), for the message.
+
+    Returns
+    -------
+    DetectorArray
+        ``detectors``: thick, with a material from the attenuation database.
+    """
     if not isinstance(detectors, DetectorArray):
-        raise ParameterError(f"detectors must be a DetectorArray, got {type(detectors).__name__}")
+        raise ParameterError(f"{name} must be a DetectorArray, got {type(detectors).__name__}")
     if detectors.thickness <= 0:
         raise ParameterError(
-            "detectors.thickness must be > 0 cm for an energy response (a flat face "
+            f"{name}.thickness must be > 0 cm for an energy response (a flat face "
             f"absorbs every photon and has no redistribution), got {detectors.thickness:g} cm"
         )
     if detectors.material is None:
-        raise ParameterError("detectors.material is required for an energy response")
+        raise ParameterError(f"{name}.material is required for an energy response")
     if detectors.material.mass_attenuation is not None:
         raise ParameterError(
-            "detectors.material.mass_attenuation must be None for an energy response: a fixed "
+            f"{name}.material.mass_attenuation must be None for an energy response: a fixed "
             "coefficient has no split into photoabsorption, scattering and pair production"
         )
     return detectors
@@ -404,7 +420,7 @@ def simulate_deposits(
     -------
     DepositSpectrum
     """
-    det = _check_detector(detectors)
+    det = check_energy_detectors(detectors)
     e = float(_check_energy(energy)[0]) if np.ndim(energy) == 0 else None
     if e is None:
         raise ParameterError("energy must be a scalar for simulate_deposits; use "
@@ -607,7 +623,7 @@ def tabulate_response(
     -------
     DetectorResponse
     """
-    det = _check_detector(detectors)
+    det = check_energy_detectors(detectors)
     e = _check_energy(energies, "energies")
     if np.any(np.diff(e) <= 0):
         raise ParameterError("energies must increase strictly")
@@ -677,7 +693,7 @@ def draw_deposits(
     numpy.ndarray
         Deposited energies (keV), shape ``(n,)``, each in ``[0, energies[i]]``.
     """
-    det = _check_detector(detectors)
+    det = check_energy_detectors(detectors)
     # A copy: a read-only array (e.g. PointSources.energy) is another type to numba, and
     # would compile the kernel a second time.
     e = np.array(_check_energy(energies, "energies"), dtype=np.float64, order="C")

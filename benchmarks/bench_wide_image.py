@@ -150,6 +150,10 @@ def main() -> None:
     ap.add_argument("--side", type=int, default=1000)
     ap.add_argument("--tolerance", type=float, default=1e-3)
     ap.add_argument("--factor", type=int, default=5)
+    ap.add_argument("--coarse-iterations", type=int, default=Refinement.iterations,
+                    help="SGP iterations of the coarse stage")
+    ap.add_argument("--screen-iterations", type=int, default=Refinement.screen_iterations,
+                    help="SGP iterations of the screening fits (0: the method every round)")
     ap.add_argument("--mlem-iter", type=int, default=200)
     ap.add_argument("--mlem-budget", type=float, default=1800.0,
                     help="seconds of MLEM at most (then extrapolated to --mlem-iter)")
@@ -222,7 +226,8 @@ def image_part(args, res: dict, resp: RadonResponse, grid: SkyGrid, counts: np.n
     """Ours (coarse-to-fine), today's default extrapolated, MLEM."""
     ours, res["ours_s"], res["ours_cpu"], res["ours_load"] = timed(lambda: reconstruct(
         resp, counts, exposure=expo, background=2.0, seed=1,
-        coarse=Refinement(factor=args.factor)))
+        coarse=Refinement(factor=args.factor, iterations=args.coarse_iterations,
+                          screen_iterations=args.screen_iterations)))
     ex = ours.extras
     res["ours"] = {"offsets": offsets(ours.image), "fluxes": fluxes(ours.image),
                    "n_iter": ours.n_iter, "stop": ours.stop_reason,

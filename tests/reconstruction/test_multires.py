@@ -8,9 +8,9 @@ import pytest
 
 from rotmod import DetectorArray, Instrument, Mask
 from rotmod.errors import ParameterError
-from rotmod.reconstruction import Refinement, StoppingRule, reconstruct
+from rotmod.reconstruction import MLEM, Refinement, StoppingRule, reconstruct
 from rotmod.reconstruction.data import as_data
-from rotmod.reconstruction.multires import _refine, coarse_grid
+from rotmod.reconstruction.multires import _refine, _screen_start, coarse_grid
 from rotmod.reconstruction.sgp import SGP
 from rotmod.response import MaterialisedResponse, RadonResponse, TimeBinning
 from rotmod.response.subset import PixelSubset
@@ -136,27 +136,49 @@ def test_refinement_refusals(case) -> None:
 
 def test_screening_grows_the_support_and_leaves_the_result_to_the_method(case) -> None:
     """Short SGP fits grow the support from one that misses the second source; the result
-    is then exactly the method's solve on the grown support, and its own check passes."""
+    is then exactly the method's (here MLEM, so the two cannot be confused) on the grown
+    support, and its own check passes."""
     radon, counts = case
     resp = radon.materialise()
     data = as_data(counts, exposure=400.0, background=1.0)
     support = np.zeros((16, 16), dtype=bool)
     support[4:9, 5:10] = True  # the first source only
     stop = StoppingRule(max_iter=300, chi2_dof=None, rel_tol=None)
-    res, rounds = _refine(resp, data, SGP, support,
+    res, rounds = _refine(resp, data, MLEM, support,
                           Refinement(factor=4, screen_iterations=30), stopping=stop)
     kinds = [r.kind for r in rounds]
     assert kinds[0] == "screen" and rounds[0].added > 0 and support[12, 3]
     assert kinds[-1] == "solve" and "screen" not in kinds[kinds.index("solve"):]
-    assert rounds[-1].max_ts_outside <= 25.0
-    # The same solve started afresh on the final support: bit for bit (SGP is deterministic).
-    alone = SGP(PixelSubset(resp, np.flatnonzero(support.ravel())), data, stopping=stop).run()
+    assert rounds[-1].max_ts_outside <= 25.0 and res.method == "mlem" and res.n_iter == 300
+    # The same solve started afresh on the final support: bit for bit (MLEM is deterministic).
+    alone = MLEM(PixelSubset(resp, np.flatnonzero(support.ravel())), data, stopping=stop).run()
     np.testing.assert_array_equal(res.image, alone.image)
     # Without screening every round is the method's, and it ends on the same sources.
     support0 = np.zeros((16, 16), dtype=bool)
     support0[4:9, 5:10] = True
-    _, rounds0 = _refine(resp, data, SGP, support0,
+    _, rounds0 = _refine(resp, data, MLEM, support0,
                          Refinement(factor=4, screen_iterations=0), stopping=stop)
     assert {r.kind for r in rounds0} == {"solve"} and support0[12, 3]
+    # One screening fit allowed, and it adds pixels: the method solves the grown support,
+    # and the support returned is the one it solved (the image is scattered onto it).
+    support1 = np.zeros((16, 16), dtype=bool)
+    support1[4:9, 5:10] = True
+    res1, rounds1 = _refine(resp, data, MLEM, support1,
+                            Refinement(factor=4, screen_iterations=30, max_rounds=1),
+                            stopping=stop)
+    assert [r.kind for r in rounds1] == ["screen", "solve"] and rounds1[0].added > 0
+    assert rounds1[1].pixels == support1.sum() == 25 + rounds1[0].added
+    assert res1.image.size == support1.sum()
     with pytest.raises(ParameterError, match=r"coarse\.screen_iterations"):
         Refinement(screen_iterations=-1)
+
+
+def test_a_screening_fit_starts_where_the_last_one_ended() -> None:
+    """The warm start maps each old pixel's flux to its place among the new, sorted pixels,
+    sets the new ones to 0 and carries the background amplitudes over."""
+    old_pix = np.array([3, 10, 11, 40])
+    z_old = np.array([1.0, 2.0, 3.0, 4.0, 7.0, 8.0])  # 4 pixels, 2 background amplitudes
+    pix = np.array([0, 3, 5, 10, 11, 12, 40, 41])
+    z = _screen_start((old_pix, z_old), pix, 2)
+    np.testing.assert_array_equal(z, [0.0, 1.0, 0.0, 2.0, 3.0, 0.0, 4.0, 0.0, 7.0, 8.0])
+    assert _screen_start(None, pix, 2) is None

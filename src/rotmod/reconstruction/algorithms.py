@@ -420,7 +420,9 @@ class NCAR(SIRT):
         if self.params["core"] == "sirt":
             full = super().run()
         else:
-            solver = self._solve(self.data)
+            # A warm start (warm_start) is the core solve's start; the layers then start
+            # from the core's solution as always.
+            solver = self._solve(self.data, self._warm)
             self._t0, self.z, self.mu = t0, solver.z, solver.mu
             self.iteration, self.history = solver.iteration, solver.history
             full = self.finalise(solver.stopping.check(

@@ -15,7 +15,7 @@ every product.  :func:`coarse_to_fine` (``reconstruct(..., coarse=...)``):
    (:class:`~rotmod.response.subset.PixelSubset`: the response's own columns, so the
    image is a solution of the full-resolution problem with the other pixels at 0), solved
    first by short SGP fits (*screening*, ``screen_iterations``) and, once the support stops
-   growing, by the method itself;
+   growing (or the screening rounds are used up), by the method itself;
 3. **check, at full resolution**: every pixel outside the support is tested for flux the
    data ask for, by the score test against the fitted model (``U_j = sum E P_ij (y/mu -
    1)``, ``I_j = sum E^2 P_ij^2 / mu``, ``TS_j = U_j^2 / I_j`` where ``U_j > 0``: one
@@ -84,13 +84,15 @@ class Refinement:
     margin : int
         Fine pixels around each added pixel that join with it (>= 0).
     max_rounds : int
-        Most fine solves with the method (>= 1), and most screening solves; the last
-        check is reported either way.
+        Most fine solves with the method (>= 1), and most screening fits; the last check
+        is reported either way.
     screen_iterations : int
-        SGP iterations of the *screening* solves, which only grow the support: the support
+        SGP iterations of the *screening* fits, which only grow the support: the support
         is solved by this short maximum-likelihood fit and checked until the check adds
-        nothing, and only then solved with the method (whose result is checked again).
-        0: every round is the method's solve (>= 0).
+        nothing (or ``max_rounds`` fits are done), and only then solved with the method
+        (whose result is checked again).  0, or ``ts_cut = 0``: every round is the
+        method's solve (the optimality check needs converged solves: against a short fit
+        almost every pixel has a positive gradient).  >= 0.
     """
 
     factor: int = 5
@@ -199,13 +201,16 @@ def _refine(response: ResponseOperator, pdata: PoissonData, cls: type[Reconstruc
     each warm-started from the last): a check needs the bright flux in place, not the
     method's image, and the method's solve on a support that a check then grows is paid
     for nothing (on the wide field a first support missed a faint source: 31 % of the
-    image's time).  Once a screening check adds nothing, the method solves the support and
-    its result is checked; pixels that check adds bring another solve with the method."""
+    image's time).  Once a screening check adds nothing (or ``ref.max_rounds`` fits are
+    done), the method solves the support and its result is checked; pixels that check adds
+    bring another solve with the method.  Screening changes the route, and may add pixels
+    an unconverged fit leaves residue at; the result is the method's solve on the final
+    support.  With ``ts_cut = 0`` there is no screening (see :class:`Refinement`)."""
     model = ForwardModel(response, pdata)
     rounds: list[_Round] = []
     sub: PixelSubset | None = None
     grow = np.ones((2 * ref.margin + 1,) * 2, dtype=bool)
-    screening = ref.screen_iterations > 0
+    screening = ref.screen_iterations > 0 and ref.ts_cut > 0
     screen_stop = StoppingRule(max_iter=max(ref.screen_iterations, 1), chi2_dof=None,
                                rel_tol=None)
     previous: tuple[np.ndarray, np.ndarray] | None = None
@@ -259,16 +264,18 @@ def coarse_to_fine(
         The refinement's parameters (an int: the coarse factor).
     **params
         As for the method (``exposure``, ``background``, ``fit_background``, stopping and
-        the method's own parameters); the stopping rule and parameters apply to the fine
-        solves.
+        the method's own parameters); the stopping rule, callbacks and the method's
+        parameters apply to the method's solves (the screening fits and the coarse solve
+        have their own iteration counts).
 
     Returns
     -------
     ReconstructionResult
-        The last fine solve's result with its images on the full grid (0 outside the
-        support); ``extras`` add ``coarse_image``, ``support`` (boolean image),
-        ``max_ts_outside`` (the largest score TS left outside the support) and ``rounds``
-        (per fine solve: pixels, solve and check seconds, largest TS outside, pixels added).
+        The method's last solve's result with its images on the full grid (0 outside the
+        support); ``extras`` add ``coarse_image``, ``support`` (boolean image: the pixels
+        that solve was run on), ``max_ts_outside`` (the largest score TS its check left
+        outside the support) and ``rounds`` (per fine round: ``kind``, ``"screen"`` or
+        ``"solve"``, pixels, solve and check seconds, largest TS outside, pixels added).
 
     Raises
     ------

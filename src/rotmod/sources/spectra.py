@@ -57,7 +57,7 @@ from rotmod.limits import check_memory
 from rotmod.response.columns import component_columns, position_grid
 from rotmod.response.operator import ResponseOperator
 from rotmod.sources.likelihood import Groups, _schur, maximise
-from rotmod.spectral.detector import DetectorResponse
+from rotmod.spectral.detector import DetectorResponse, check_energy_detectors
 from rotmod.spectral.models import PowerLaw, SpectralModel
 from rotmod.spectral.spectrum import (
     RateSpectrum,
@@ -311,15 +311,7 @@ def _check_energy_dependence(instrument: Any, detector_response: DetectorRespons
     """The instrument's response must follow energy as the detector response does: thick
     detectors of the material it was tabulated for, and coefficients from the database (a
     fixed one would make every energy's column the same)."""
-    det = instrument.detectors
-    if det.thickness <= 0:
-        raise ParameterError(
-            "response: the instrument's detectors must have a thickness and a material for an "
-            "energy response (a flat face counts every photon at every energy)")
-    if det.material.mass_attenuation is not None:
-        raise ParameterError(
-            "response: the detectors' material has a fixed mass_attenuation; an energy "
-            "response needs the database's, which depends on energy")
+    det = check_energy_detectors(instrument.detectors, "response: instrument.detectors")
     mask = instrument.mask
     fixed = mask.mu if mask.mu is not None else mask.material.mass_attenuation
     if fixed is not None and (fixed.value if isinstance(fixed, u.Quantity) else fixed) != 0:

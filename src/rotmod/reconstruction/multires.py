@@ -99,7 +99,8 @@ class Refinement:
     tolerance: float = 1e-2
     # 50 (was 100): with screening a coarse image that misses flux costs a short SGP fit
     # and a check, not a solve with the method; on the wide field 100 -> 50 took the coarse
-    # stage from 51 s to 26 s, with the same sources on their pixels (docs/reconstruction.md).
+    # stage from 51 s to 26 s and the image from 266 s to 212 s, the same sources on their
+    # pixels (without screening it made the image slower, 326 s: docs/reconstruction.md).
     iterations: int = 50
     ts_cut: float = 25.0
     max_pixels: int = 1500

@@ -154,6 +154,8 @@ def main() -> None:
                     help="SGP iterations of the coarse stage")
     ap.add_argument("--screen-iterations", type=int, default=Refinement.screen_iterations,
                     help="SGP iterations of the screening fits (0: the method every round)")
+    ap.add_argument("--margin", type=int, default=Refinement.margin,
+                    help="pixels around each pixel a check adds that join with it")
     ap.add_argument("--mlem-iter", type=int, default=200)
     ap.add_argument("--mlem-budget", type=float, default=1800.0,
                     help="seconds of MLEM at most (then extrapolated to --mlem-iter)")
@@ -227,7 +229,7 @@ def image_part(args, res: dict, resp: RadonResponse, grid: SkyGrid, counts: np.n
     ours, res["ours_s"], res["ours_cpu"], res["ours_load"] = timed(lambda: reconstruct(
         resp, counts, exposure=expo, background=2.0, seed=1,
         coarse=Refinement(factor=args.factor, iterations=args.coarse_iterations,
-                          screen_iterations=args.screen_iterations)))
+                          screen_iterations=args.screen_iterations, margin=args.margin)))
     ex = ours.extras
     res["ours"] = {"offsets": offsets(ours.image), "fluxes": fluxes(ours.image),
                    "n_iter": ours.n_iter, "stop": ours.stop_reason,

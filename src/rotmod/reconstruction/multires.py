@@ -82,7 +82,9 @@ class Refinement:
         Most fine pixels the coarse stage puts in the support (the check adds any others
         the data ask for).
     margin : int
-        Fine pixels around each added pixel that join with it (>= 0).
+        Fine pixels around each added pixel that join with it (>= 0; default 0: the check
+        adds every pixel whose flux is significant, and with screening another round is
+        cheap, while each pixel of margin costs every iteration of the method's solve).
     max_rounds : int
         Most fine solves with the method (>= 1), and most screening fits; the last check
         is reported either way.
@@ -104,7 +106,7 @@ class Refinement:
     iterations: int = 50
     ts_cut: float = 25.0
     max_pixels: int = 1500
-    margin: int = 1
+    margin: int = 0
     max_rounds: int = 4
     screen_iterations: int = 200
 

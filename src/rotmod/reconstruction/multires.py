@@ -20,7 +20,8 @@ every product.  :func:`coarse_to_fine` (``reconstruct(..., coarse=...)``):
    data ask for, by the score test against the fitted model (``U_j = sum E P_ij (y/mu -
    1)``, ``I_j = sum E^2 P_ij^2 / mu``, ``TS_j = U_j^2 / I_j`` where ``U_j > 0``: one
    adjoint and one squared adjoint of the full response); pixels with ``TS_j > ts_cut``
-   (and their neighbours) join the support and step 2 is repeated.  The method's solve
+   (and ``margin`` pixels around each) join the support and step 2 is repeated.  The
+   method's solve
    is always checked: the result's ``max_ts_outside`` is its check's.
 
 With ``ts_cut = 0`` the check is the Karush-Kuhn-Tucker condition of the full problem

@@ -21,8 +21,7 @@ every product.  :func:`coarse_to_fine` (``reconstruct(..., coarse=...)``):
    1)``, ``I_j = sum E^2 P_ij^2 / mu``, ``TS_j = U_j^2 / I_j`` where ``U_j > 0``: one
    adjoint and one squared adjoint of the full response); pixels with ``TS_j > ts_cut``
    (and ``margin`` pixels around each) join the support and step 2 is repeated.  The
-   method's solve
-   is always checked: the result's ``max_ts_outside`` is its check's.
+   method's solve is always checked: the result's ``max_ts_outside`` is its check's.
 
 With ``ts_cut = 0`` the check is the Karush-Kuhn-Tucker condition of the full problem
 (no pixel held at 0 has a positive likelihood gradient), so a converged

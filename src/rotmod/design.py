@@ -290,7 +290,7 @@ def scan_designs(
         as_int(val, name, 1)
     mat = material if isinstance(material, Material) else Material(str(material))
     if mu is None:
-        mus = np.array([float(mat.linear_attenuation(e)) for e in E])
+        mus = np.asarray(mat.linear_attenuation(E), dtype=float)
     else:
         opaque = not isinstance(mu, u.Quantity) and np.isposinf(float(mu))
         m = np.inf if opaque else as_scalar(mu, "mu", 1 / u.cm, lo=0.0)

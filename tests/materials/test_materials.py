@@ -100,6 +100,25 @@ def test_fixed_sigma_overrides_database():
 
 
 @pytest.mark.parametrize(
+    "mask",
+    [Mask(4, 4, 2, 100), Mask(4, 4, 2, 100, mu=3.5),
+     Mask(4, 4, 2, 100, Material("Pb", density=11.34, mass_attenuation=0.103))],
+    ids=["database", "fixed mu", "fixed sigma"],
+)
+def test_attenuation_of_many_energies_is_each_energy_s(mask):
+    # The vectorised call (the Monte Carlo's one per source) against the scalar one, value by
+    # value: the same database interpolation, so equal to the last bit.
+    energies = np.array([30.0, 122.0, 662.0, 662.0, 4000.0])
+    many = mask.linear_attenuation(energies)
+    assert isinstance(many, np.ndarray) and many.shape == energies.shape
+    assert many.tolist() == [mask.linear_attenuation(e) for e in energies]
+    assert isinstance(mask.linear_attenuation(662.0), float)
+    # A bad energy is refused even where the coefficient does not depend on it.
+    with pytest.raises(ParameterError, match="energy"):
+        mask.linear_attenuation(np.array([662.0, -1.0]))
+
+
+@pytest.mark.parametrize(
     ("call", "exc", "match"),
     [
         (lambda: Material("Unobtainium"), MaterialError, "Unobtainium"),

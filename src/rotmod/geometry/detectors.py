@@ -132,8 +132,9 @@ class DetectorArray:
         """True for flat faces that count every photon reaching them (``thickness = 0``)."""
         return self.thickness == 0.0
 
-    def linear_attenuation(self, energy: Any) -> float:
-        """Linear attenuation coefficient of the detector material (1/cm) at ``energy`` (keV).
+    def linear_attenuation(self, energy: Any) -> float | np.ndarray:
+        """Linear attenuation coefficient of the detector material (1/cm) at ``energy`` (keV):
+        a float for one energy, an array of ``energy``'s shape for several.
 
         Raises
         ------

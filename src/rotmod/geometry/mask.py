@@ -8,7 +8,7 @@ from typing import Any
 import astropy.units as u
 import numpy as np
 
-from rotmod._validate import as_angle_scalar, as_array, as_energy_scalar, as_scalar
+from rotmod._validate import as_angle_scalar, as_array, as_energy, as_energy_scalar, as_scalar
 from rotmod.errors import ParameterError
 from rotmod.materials import Material
 
@@ -296,8 +296,9 @@ class Mask:
         d = np.minimum(d, p - d)
         return bool(np.all(d.min(axis=1) <= _EDGE_RTOL * p * 10))
 
-    def linear_attenuation(self, energy: Any = None) -> float:
-        """Linear attenuation coefficient of the slats (1/cm) at ``energy`` (keV).
+    def linear_attenuation(self, energy: Any = None) -> float | np.ndarray:
+        """Linear attenuation coefficient of the slats (1/cm) at ``energy`` (keV): a float for
+        one energy (or None), an array of ``energy``'s shape for several.
 
         Raises
         ------
@@ -307,10 +308,11 @@ class Mask:
         """
         # A given energy is checked even when the attenuation is fixed: a NaN or negative
         # energy is a mistake whatever the mask.
-        e = None if energy is None else as_energy_scalar(energy, "energy")
-        if self.mu is not None:
-            return float(self.mu)
-        return self.material.coefficient(e, "the mask's", hint=", or set mask.mu")
+        e = (None if energy is None else as_energy_scalar(energy, "energy")
+             if np.ndim(energy) == 0 else as_energy(energy, "energy"))
+        if self.mu is None:
+            return self.material.coefficient(e, "the mask's", hint=", or set mask.mu")
+        return float(self.mu) if np.ndim(e) == 0 else np.full(np.shape(e), float(self.mu))
 
     def slat_fraction(self, u0: np.ndarray) -> np.ndarray:
         """1 where mask coordinate ``u0`` lies in a slat, 0 in a gap (edges count as slat)."""

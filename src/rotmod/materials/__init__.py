@@ -345,13 +345,14 @@ class Material:
         """Linear attenuation coefficient ``mu = sigma * rho`` (1/cm) at ``energy`` (keV)."""
         return self.mass_attenuation_at(energy) * self.density
 
-    def coefficient(self, energy: Any, whose: str, hint: str = "") -> float:
-        """``mu`` (1/cm) at one energy (keV): the fixed coefficient when the material has one
+    def coefficient(self, energy: Any, whose: str, hint: str = "") -> float | np.ndarray:
+        """``mu`` (1/cm) at ``energy`` (keV): the fixed coefficient when the material has one
         (``energy`` may then be None), else the database's.
 
         Parameters
         ----------
-        energy : float, Quantity or None
+        energy : float, array_like, Quantity or None
+            One energy (a float is returned) or several (an array of their shape).
         whose, hint : str
             Whose attenuation it is (``"the detectors'"``) and what else the user could do,
             for the error message.
@@ -359,13 +360,16 @@ class Material:
         Raises
         ------
         ParameterError
-            No fixed coefficient and no energy.
+            No fixed coefficient and no energy, or an energy that is not a positive finite
+            number (checked also when the coefficient is fixed).
         """
-        if self.mass_attenuation is not None:
-            return float(self.mass_attenuation * self.density)
         if energy is None:
-            raise ParameterError(
-                f"energy is required: {whose} attenuation comes from the material database "
-                f"({self.name}){hint}"
-            )
-        return float(self.linear_attenuation(as_energy_scalar(energy, "energy")))
+            if self.mass_attenuation is None:
+                raise ParameterError(
+                    f"energy is required: {whose} attenuation comes from the material "
+                    f"database ({self.name}){hint}"
+                )
+            return float(self.mass_attenuation * self.density)
+        if np.ndim(energy) == 0:
+            return float(self.linear_attenuation(as_energy_scalar(energy, "energy")))
+        return np.asarray(self.linear_attenuation(as_energy(energy, "energy")), dtype=float)

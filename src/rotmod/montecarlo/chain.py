@@ -28,13 +28,13 @@ from typing import Any
 import numpy as np
 
 from rotmod._rng import seed_sequence
-from rotmod._validate import as_angle, as_angle_scalar, as_energy, as_int
+from rotmod._validate import as_angle, as_angle_scalar, as_int
 from rotmod.energy import EnergyResolution
 from rotmod.errors import ParameterError
 from rotmod.geometry import Instrument
 from rotmod.montecarlo.simulate import simulate_profiles
 from rotmod.spectral.detector import (
-    ENERGY_RANGE_KEV,
+    check_energies,
     check_energy_detectors,
     draw_deposits,
 )
@@ -145,8 +145,7 @@ def simulate_channel_counts(
     where_xi = {"xi": angles} if xi_edges is None else {"xi_edges": angles}
     # The transport's range, checked here: inside draw_deposits it would come after a
     # batch of the instrument Monte Carlo, and never for a batch with no photon counted.
-    e = np.asarray(as_energy(energies, "energies", lo=ENERGY_RANGE_KEV[0],
-                             hi=ENERGY_RANGE_KEV[1], ndim=1), dtype=float)
+    e = np.asarray(check_energies(energies, "energies"), dtype=float)
     if e.size == 0:
         raise ParameterError("energies must hold at least one photon energy, got none")
     ch = check_edges(channel_edges, "channel_edges")

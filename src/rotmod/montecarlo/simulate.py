@@ -287,9 +287,7 @@ def simulate_profiles(
     dist = as_distance(distance, th.size)
     if not isinstance(poisson, bool | np.bool_):
         raise ParameterError(f"poisson must be True or False, got {poisson!r}")
-    mu = _coefficients(inst.mask.linear_attenuation, inst.mask.material.linear_attenuation,
-                       inst.mask.mu is not None or inst.mask.material.mass_attenuation
-                       is not None, e, th.size)
+    mu = np.broadcast_to(inst.mask.linear_attenuation(e), (th.size,)).astype(float)
     a, b, L, h, thin = _mask_params(inst)
     if thin and np.isinf(mu).any() and not np.isinf(mu).all():
         raise ParameterError("a thin opaque mask needs mu = inf at every source energy")
@@ -357,17 +355,6 @@ def _energies(energy: Any, n_src: int) -> float | np.ndarray:
     return np.array(e, dtype=float)
 
 
-def _coefficients(one: Callable[[Any], float], many: Callable[[Any], np.ndarray],
-                  fixed: bool, energy: float | np.ndarray | None, n_src: int) -> np.ndarray:
-    """Attenuation coefficients (1/cm) per source: ``one(energy)`` for a fixed coefficient or
-    a single energy, else ``many`` at each source's energy (the database, vectorised)."""
-    if energy is None or np.ndim(energy) == 0:
-        return np.full(n_src, one(energy))
-    if fixed:  # the energies were checked; a fixed coefficient does not depend on them
-        return np.full(n_src, one(None))
-    return np.asarray(many(energy), dtype=float).reshape(n_src)
-
-
 def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.ndarray,
                   mu: np.ndarray, energy: float | np.ndarray | None, xi_lo: np.ndarray,
                   xi_w: np.ndarray, binned: bool, thin_opaque: bool, n_t: int, n_n: int) -> tuple:
@@ -413,8 +400,7 @@ def _asbuilt_args(inst: Instrument, th: np.ndarray, ph: np.ndarray, dist: np.nda
                     scale[d, 0, n] = disc_flux(S[n], g, gr) / disc_flux(S[n], c, R)
             elif H > 0:
                 scale[d, 0, n] = (gr / R) ** 2
-    mu_det = (_coefficients(det.linear_attenuation, det.material.linear_attenuation,
-                            det.material.mass_attenuation is not None, energy, n_n)
+    mu_det = (np.broadcast_to(det.linear_attenuation(energy), (n_n,)).astype(float)
               if H > 0 else np.zeros(n_n))
     Q, cm = mask.frame()
     e0, W, _, p = mask.pattern()

@@ -214,8 +214,8 @@ def _refine(response: ResponseOperator, pdata: PoissonData, cls: type[Reconstruc
     sub: PixelSubset | None = None
     grow = np.ones((2 * ref.margin + 1,) * 2, dtype=bool)
     screening = ref.screen_iterations > 0 and ref.ts_cut > 0
-    screen_stop = StoppingRule(max_iter=max(ref.screen_iterations, 1), chi2_dof=None,
-                               rel_tol=None)
+    screen_stop = (StoppingRule(max_iter=ref.screen_iterations, chi2_dof=None, rel_tol=None)
+                   if screening else None)
     previous: tuple[np.ndarray, np.ndarray] | None = None
     while True:
         ts0 = time.perf_counter()

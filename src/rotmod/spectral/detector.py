@@ -63,6 +63,7 @@ __all__ = [
     "MAX_PHOTONS",
     "DepositSpectrum",
     "DetectorResponse",
+    "check_energies",
     "check_energy_detectors",
     "draw_deposits",
     "sample_klein_nishina",
@@ -225,7 +226,22 @@ def check_energy_detectors(detectors: Any, name: str = "detectors") -> DetectorA
     return detectors
 
 
-def _check_energy(energy: Any, name: str = "energy") -> np.ndarray:
+def check_energies(energy: Any, name: str = "energy") -> np.ndarray:
+    """``energy`` (keV) as a 1-D array if every value lies in :data:`ENERGY_RANGE_KEV` (the
+    attenuation database's range that photons are transported in), else a
+    :class:`~rotmod.errors.ParameterError` that names ``name`` and the rule.
+
+    Parameters
+    ----------
+    energy : float, array_like or Quantity
+    name : str
+        What the caller calls it, for the message.
+
+    Returns
+    -------
+    numpy.ndarray
+        The energies in keV, at least 1-D.
+    """
     lo, hi = ENERGY_RANGE_KEV
     return as_energy(energy, name, lo=lo, hi=hi, ndim=1)
 
@@ -421,7 +437,7 @@ def simulate_deposits(
     DepositSpectrum
     """
     det = check_energy_detectors(detectors)
-    e = float(_check_energy(energy)[0]) if np.ndim(energy) == 0 else None
+    e = float(check_energies(energy)[0]) if np.ndim(energy) == 0 else None
     if e is None:
         raise ParameterError("energy must be a scalar for simulate_deposits; use "
                              "tabulate_response for a grid")
@@ -624,7 +640,7 @@ def tabulate_response(
     DetectorResponse
     """
     det = check_energy_detectors(detectors)
-    e = _check_energy(energies, "energies")
+    e = check_energies(energies, "energies")
     if np.any(np.diff(e) <= 0):
         raise ParameterError("energies must increase strictly")
     ang = np.degrees(as_angle(angles, "angles", lo=0.0, hi=90.0, hi_open=True, ndim=1))
@@ -696,7 +712,7 @@ def draw_deposits(
     det = check_energy_detectors(detectors)
     # A copy: a read-only array (e.g. PointSources.energy) is another type to numba, and
     # would compile the kernel a second time.
-    e = np.array(_check_energy(energies, "energies"), dtype=np.float64, order="C")
+    e = np.array(check_energies(energies, "energies"), dtype=np.float64, order="C")
     if e.size > MAX_PHOTONS:
         raise ParameterError(f"energies must hold at most {MAX_PHOTONS} photons, got {e.size}")
     th = as_angle_scalar(theta, "theta", lo=0.0, hi=90.0, hi_open=True)

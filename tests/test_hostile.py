@@ -76,7 +76,8 @@ def test_api_mistakes_name_the_parameter(files) -> None:
     with pytest.raises(ParameterError, match="instrument must be an Instrument, got NoneType"):
         get_model("exact").profile(None, [1.0], [0.0], [0.0])
     # A fixed attenuation does not make a nonsensical energy acceptable.
-    for bad in (np.nan, -5.0):
+    # A profile is at one energy (the attenuation calls also take many: not here).
+    for bad in (np.nan, -5.0, [662.0], [122.0, 662.0]):
         with pytest.raises(ParameterError, match="energy must be"):
             get_model("exact").profile(inst, [1.0], [0.0], [0.0], energy=bad)
 

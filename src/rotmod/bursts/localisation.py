@@ -683,13 +683,15 @@ def localise_burst(
         m = f.fit_positions(m, scale=0.5 * pixel, precision=CLIMB_PRECISION)
         if lc is not None:
             # The pulse fit is not convex: refined from the start's pulses it can stay in
-            # another optimum than refined from the search's (measured: up to 32 in TS at
-            # the truth), so both are tried where the climb ended and the likelier kept.
-            tries = [seen_from(m.sources[0], fine, fine_unit, fine_data, s)
-                     for s in (lc, None)]
-            f, lc = max(tries, key=lambda t: t[0].maximise(m)[1].loglike)
-            m = f.fit_positions(f.maximise(m)[0], scale=0.5 * pixel,
-                                precision=CLIMB_PRECISION)
+            # another optimum than refined from the search's (measured in the calibration:
+            # the truth, within 0.22 deg of the best fit, above it by 1.5-1535 in TS in 7
+            # of 34 bursts), so both are tried where the climb ended and the likelier kept.
+            tries = []
+            for begin in (lc, None):
+                f_s, lc_s = seen_from(m.sources[0], fine, fine_unit, fine_data, begin)
+                tries.append((f_s.maximise(m), f_s, lc_s))
+            (fitted, _), f, lc = max(tries, key=lambda t: t[0][1].loglike)
+            m = f.fit_positions(fitted, scale=0.5 * pixel, precision=CLIMB_PRECISION)
         return m, f.maximise(m)[1].loglike, f, lc
 
     fits = sorted((climb(PointSource(p)) for p in starts), key=lambda fit: -fit[1])

@@ -31,7 +31,7 @@ from typing import Any, ClassVar, TypeVar
 import numba
 import numpy as np
 
-from rotmod._validate import as_angle, as_distance, as_float_dtype
+from rotmod._validate import as_angle, as_distance, as_energy_scalar, as_float_dtype
 from rotmod.errors import ModelValidityError, ParameterError
 from rotmod.geometry import Instrument
 from rotmod.limits import check_memory
@@ -150,6 +150,8 @@ def project(
     if np.isfinite(dist).any():
         instrument.source_positions(th, ph, dist)  # validates: above the mask's top face
     mask, det = instrument.mask, instrument.detectors
+    # One energy: the attenuation calls also take many, which a projection cannot use.
+    energy = None if energy is None else as_energy_scalar(energy, "energy")
     mu = mask.linear_attenuation(energy)
     mu_det = 0.0 if det.is_flat else det.linear_attenuation(energy)
     t = np.tan(th)

@@ -306,13 +306,16 @@ class Mask:
             If neither ``mu`` nor the material's mass attenuation is fixed and no energy
             is given.
         """
-        # A given energy is checked even when the attenuation is fixed: a NaN or negative
-        # energy is a mistake whatever the mask.
-        e = (None if energy is None else as_energy_scalar(energy, "energy")
-             if np.ndim(energy) == 0 else as_energy(energy, "energy"))
-        if self.mu is None:
-            return self.material.coefficient(e, "the mask's", hint=", or set mask.mu")
-        return float(self.mu) if np.ndim(e) == 0 else np.full(np.shape(e), float(self.mu))
+        if self.mu is None:  # the material checks the energy
+            return self.material.coefficient(energy, "the mask's", hint=", or set mask.mu")
+        # A given energy is checked even when mu is fixed: a NaN or negative energy is a
+        # mistake whatever the mask.
+        if energy is None:
+            return float(self.mu)
+        if np.ndim(energy) == 0:
+            as_energy_scalar(energy, "energy")
+            return float(self.mu)
+        return np.full(np.shape(as_energy(energy, "energy")), float(self.mu))
 
     def slat_fraction(self, u0: np.ndarray) -> np.ndarray:
         """1 where mask coordinate ``u0`` lies in a slat, 0 in a gap (edges count as slat)."""

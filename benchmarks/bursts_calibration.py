@@ -540,6 +540,19 @@ def report(data: dict) -> str:
     return "\n".join(L)
 
 
+def _pipeline_md5() -> dict[str, str]:
+    """Short hashes of the burst pipeline's source files (which code a record ran on)."""
+    import hashlib
+
+    import rotmod.bursts.analysis
+    import rotmod.bursts.localisation
+    import rotmod.bursts.posterior
+    import rotmod.bursts.pulses
+    return {m.__name__: hashlib.md5(Path(m.__file__).read_bytes()).hexdigest()[:12]
+            for m in (rotmod.bursts.analysis, rotmod.bursts.localisation,
+                      rotmod.bursts.posterior, rotmod.bursts.pulses)}
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n", type=int, default=100, help="bursts (default 100)")
@@ -589,6 +602,7 @@ def main(argv: list[str] | None = None) -> None:
     except (ValueError, AssertionError):
         sys.exit(f"--shard: must be K/N with 0 <= K < N, got {args.shard!r}")
     inst, att = setup()
+    src = _pipeline_md5()
     if args.resume and out.exists():
         data = json.loads(out.read_text())
         if data["config"]["seed"] != args.seed:
@@ -597,21 +611,18 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(f"--resume: {out} has pulses of shape {data['config'].get('shape')}, "
                      f"not {args.shape}")
         data["config"]["n"] = args.n
+        if src != data["config"].get("src_md5"):
+            # the pipeline's source changed since the run started: say so in the file, so
+            # that a reader can tell which bursts ran on which code
+            data["config"].setdefault("resumed", []).append({
+                "at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "after_bursts": len(data["bursts"]), "src_md5": src})
     else:
         try:
             import numba
             threads = numba.config.NUMBA_NUM_THREADS
         except Exception:
             threads = None
-        import hashlib
-
-        import rotmod.bursts.analysis
-        import rotmod.bursts.localisation
-        import rotmod.bursts.posterior
-        import rotmod.bursts.pulses
-        src = {m.__name__: hashlib.md5(Path(m.__file__).read_bytes()).hexdigest()[:12]
-               for m in (rotmod.bursts.analysis, rotmod.bursts.localisation,
-                         rotmod.bursts.posterior, rotmod.bursts.pulses)}
         data = {"config": {"n": args.n, "src_md5": src, "started": time.strftime(
                                "%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "seed": args.seed,
                            "no_lc_subset": args.no_lc_subset, "shape": args.shape,

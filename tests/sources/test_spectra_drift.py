@@ -223,3 +223,96 @@ def test_extracted_spectrum_of_a_drift_is_predicted_by_its_response(drift) -> No
         errs.append(float(np.max(np.abs(folded / wrong.rate - 1.0))))
     print(f"extracted vs folded through its response, subdivide 4, 8: {errs}")
     assert errs[1] < errs[0] / 3 and errs[1] < 2e-3
+
+
+@pytest.fixture(scope="module")
+def slices(setup):
+    """A drift cut into two time slices (intervals 0-1 and 2-3), one drift response each."""
+    inst, _, grid = setup
+    return [drift_response(inst, grid, N_T, part, energy=300.0)
+            for part in (INTERVALS[:2], INTERVALS[2:])]
+
+
+@pytest.mark.parametrize("air", ["none", "slice", "interval"])
+def test_time_slices_of_a_drift_are_each_slice_alone(setup, slices, air) -> None:
+    """A flight cut into time slices with a response each (a zenith-pointed gondola: the
+    sources move from slice to slice): each slice's rates are those of its own response's
+    columns built alone -- with a transmission per slice, or per attitude interval across
+    the slices (the intervals of every slice in order).  The slices' columns share the
+    angle nodes of the whole flight, the one built alone only those of its slice; the nodes
+    a slice does not visit get no share, so the identity is exact: 1e-12 is rounding."""
+    _, table, _ = setup
+    kw: list[dict] = [{}, {}]
+    both: dict = {}
+    if air == "slice":
+        trans = np.exp(-np.array([3.0, 6.0])[:, None, None] * 0.15 * (NODES / 100.0) ** -0.35)
+        trans = trans * np.ones((1, 2, 1))
+        both, kw = {"transmission": trans}, [{"transmission": t} for t in trans]
+    elif air == "interval":
+        depth = np.array([3.0, 4.0, 5.0, 6.5])[:, None, None]
+        trans = np.exp(-depth * 0.15 * (NODES / 100.0) ** -0.35) * np.ones((1, 2, 1))
+        both = {"interval_transmission": trans}
+        kw = [{"interval_transmission": trans[:2]}, {"interval_transmission": trans[2:]}]
+    cols = spectral_columns(slices, SOURCES, table, **both)
+    assert cols.shape == (2, 3, N_T, CHANNELS.size - 1) and cols.n_sources == 2
+    worst = 0.0
+    for s, m in enumerate([PowerLaw(1e-3, -2.0), PowerLaw(3e-3, -1.5)]):
+        got = cols.rates(s, m)
+        for i, response in enumerate(slices):
+            want = spectral_columns(response, SOURCES, table, **kw[i]).rates(s, m)
+            assert want.max() > 0
+            np.testing.assert_allclose(got[i], want, rtol=1e-12, atol=1e-14 * want.max())
+            worst = max(worst, float(np.abs(got[i] - want).max() / want.max()))
+    print(f"time slices vs each slice alone ({air}): max |diff| / max = {worst:.1e}")
+
+
+def test_fit_of_a_sliced_drift_recovers_the_power_law(setup, slices) -> None:
+    """Poisson counts of a drift cut into two time slices (source + a background whose
+    level differs between the slices), fitted with the sliced columns and a level per
+    detector and channel shaped in time by a template: the index and normalisation lie
+    within 3 sigma of the truth (each fails with probability ~0.3 % for a correct fit;
+    fixed seed), and the fit of the same counts with the second slice's columns in both
+    (the source taken as not moving) is far worse."""
+    _, table, _ = setup
+    cols = spectral_columns(slices, SOURCES[:1], table)
+    truth = PowerLaw(2e-2, -2.0)
+    expo = np.full((2, N_T), 1000.0)
+    template = np.array([1.0, 1.6])[:, None] * np.ones(CHANNELS.size - 1)   # (n_slice, n_c)
+    mu = expected_counts(cols, expo, [truth], 0.05 * template)
+    y = np.random.default_rng(29).poisson(mu)
+    fit = fit_spectra(cols, y, expo, [PowerLaw(1e-2, -1.7)], free=[["K", "index"]],
+                      background=template)
+    err = fit.errors[0]
+    pull = (fit.scales - 0.05) / fit.scale_errors
+    print(f"fitted {fit.models[0].parameters}, errors {err}; background scales' pulls "
+          f"{pull.mean():.2f} +- {pull.std():.2f} ({pull.size})")
+    assert fit.converged and 0 < err["index"] < 0.2, err
+    assert abs(fit.models[0].parameters["index"] + 2.0) < 3 * err["index"], (fit.models, err)
+    assert abs(fit.models[0].parameters["K"] - 2e-2) < 3 * err["K"], (fit.models, err)
+    still = SpectralColumns(np.stack([cols.columns[1]] * 2), cols.redistribution,
+                            cols.energies, cols.channel_edges, cols.theta)
+    wrong = fit_spectra(still, y, expo, [PowerLaw(1e-2, -1.7)], free=[["K", "index"]],
+                        background=template)
+    print(f"2 ln L ratio, sliced vs still columns: {2 * (fit.loglike - wrong.loglike):.1f}")
+    assert 2 * (fit.loglike - wrong.loglike) > 25.0
+
+
+def test_time_slices_bad_input(setup, slices) -> None:
+    inst, table, grid = setup
+    with pytest.raises(ParameterError, match="sequence of one or more"):
+        spectral_columns([], SOURCES, table)
+    with pytest.raises(ParameterError, match="sequence of one or more"):
+        spectral_columns([slices[0], "x"], SOURCES, table)
+    other = drift_response(inst, grid, N_T + 1, INTERVALS[2:], energy=300.0)
+    with pytest.raises(ParameterError, match="mask-angle bins"):
+        spectral_columns([slices[0], other], SOURCES, table)
+    with pytest.raises(ParameterError, match="one slice per response"):
+        spectral_columns(slices, SOURCES, table, transmission=np.ones((3, 2, 7)))
+    with pytest.raises(ParameterError, match="interval_transmission must have shape"):
+        spectral_columns(slices, SOURCES, table, interval_transmission=np.ones((2, 2, 7)))
+    cols = spectral_columns(slices, SOURCES, table)
+    with pytest.raises(ParameterError, match="transmission must have shape"):
+        SpectralColumns(cols.columns, cols.redistribution, cols.energies, cols.channel_edges,
+                        cols.theta, np.ones((3, 2, 7)))
+    with pytest.raises(ParameterError, match="time slices are fitted with fit_spectra"):
+        extract_spectrum(cols, np.ones(cols.shape), np.ones(N_T))

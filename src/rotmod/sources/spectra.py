@@ -82,14 +82,19 @@ class SpectralColumns:
     for a drifting observation, where each attitude interval sees the source at its own
     angle, its nodes are the tabulated angles it visits and each interval's columns are
     shared between them with the interpolation's own weights (docs/spectra.md: exact with
-    respect to that interpolation).
+    respect to that interpolation).  A flight cut into time slices, each folded into
+    mask-angle bins of its own, predicts counts with a leading slice axis: the slices share
+    one set of columns and differ by their ``transmission`` (a gondola that tracks its
+    sources), or each slice has its own columns (a drifting flight: the sources move through
+    the field from slice to slice), or both.
 
     Attributes
     ----------
-    columns : ndarray, shape (n_src, n_a, n_e, n_det, n_time)
+    columns : ndarray, shape ([n_slice,] n_src, n_a, n_e, n_det, n_time)
         Counts per second in each detector and bin per photon cm^-2 s^-1 at each node
         energy (the response's column times the face's projected area), per angle node
-        (a source with fewer nodes than ``n_a`` has columns of 0 in the others).
+        (a source with fewer nodes than ``n_a`` has columns of 0 in the others); with a
+        leading axis, per time slice.
     redistribution : ndarray, shape (n_src, n_a, n_e, n_c)
         The detector's redistribution at each angle node.
     energies : ndarray, shape (n_e,)
@@ -101,8 +106,8 @@ class SpectralColumns:
         For a flight cut into time slices (each folded into mask-angle bins): the fraction
         of each source's photons at each node energy that reach the instrument in each
         slice (the atmosphere above a balloon changes with its altitude and the source's
-        zenith angle).  The counts then gain a leading slice axis.  None: one interval (any
-        transmission is then part of ``columns``).
+        zenith angle).  The counts then gain a leading slice axis.  None: the transmission,
+        if any, is part of ``columns``.
     """
 
     columns: np.ndarray
@@ -115,36 +120,61 @@ class SpectralColumns:
     def __post_init__(self) -> None:
         cols, red = np.shape(self.columns), np.shape(self.redistribution)
         n_e, n_c = np.size(self.energies), np.size(self.channel_edges) - 1
-        if len(cols) != 5 or cols[2] != n_e:
-            raise ParameterError(f"columns must have shape (n_src, n_angle_nodes, n_e={n_e}, "
-                                 f"n_det, n_time), got {cols}")
-        if red != (*cols[:3], n_c):
+        if len(cols) not in (5, 6) or cols[-3] != n_e:
+            raise ParameterError(f"columns must have shape ([n_slice,] n_src, n_angle_nodes, "
+                                 f"n_e={n_e}, n_det, n_time), got {cols}")
+        src = cols[-5:-2]                                  # (n_src, n_a, n_e)
+        if red != (*src, n_c):
             raise ParameterError(f"redistribution must have shape (n_src, n_angle_nodes, n_e, "
-                                 f"n_c) = {(*cols[:3], n_c)}, got {red}")
-        if np.shape(self.theta) != cols[:2]:
-            raise ParameterError(f"theta must have shape (n_src, n_angle_nodes) = {cols[:2]}, "
+                                 f"n_c) = {(*src, n_c)}, got {red}")
+        if np.shape(self.theta) != src[:2]:
+            raise ParameterError(f"theta must have shape (n_src, n_angle_nodes) = {src[:2]}, "
                                  f"got {np.shape(self.theta)}")
+        if self.transmission is not None:
+            got = np.shape(self.transmission)
+            if len(got) != 3 or got[1:] != (src[0], n_e) or (len(cols) == 6 and
+                                                            got[0] != cols[0]):
+                n_s = cols[0] if len(cols) == 6 else "n_slice"
+                raise ParameterError(f"transmission must have shape (n_slice, n_src, n_e) = "
+                                     f"({n_s}, {src[0]}, {n_e}), got {got}")
+
+    @property
+    def n_sources(self) -> int:
+        """The number of sources."""
+        return int(self.columns.shape[-5])
 
     @property
     def shape(self) -> tuple[int, ...]:
         """``(n_det, n_time, n_channels)`` of the counts it predicts, ``(n_slice, n_det,
         n_time, n_channels)`` for a flight's time slices."""
-        one = (*self.columns.shape[3:], self.redistribution.shape[3])
+        one = (*self.columns.shape[-2:], self.redistribution.shape[3])
+        if self.columns.ndim == 6:
+            return (self.columns.shape[0], *one)
         return one if self.transmission is None else (self.transmission.shape[0], *one)
 
     def rates(self, k: int, model: SpectralModel) -> np.ndarray:
         """Counts per second (:attr:`shape`) of source ``k`` with spectrum ``model``."""
         flux = model.node_weights(self.energies)
-        n_a, n_e, n_det, n_t = self.columns.shape[1:]
+        n_a, n_e, n_det, n_t = self.columns.shape[-4:]
+        red = self.redistribution[k]
+        if self.columns.ndim == 6:
+            # Each slice its own columns: per slice s one (n_det n_t, n_a n_e) x (n_a n_e,
+            # n_c) product, with its photons F_e T[s, e].
+            n_s = self.columns.shape[0]
+            photons = flux if self.transmission is None else self.transmission[:, k] * flux
+            m = np.broadcast_to(photons, (n_s, n_e))[:, None, :, None] * red
+            cols = self.columns[:, k].reshape(n_s, n_a * n_e, n_det * n_t)
+            return (cols.transpose(0, 2, 1) @ m.reshape(n_s, n_a * n_e, -1)).reshape(
+                self.shape)
         # The angle nodes and energies as one axis: sum_a sum_e F_e col[a, e, d, t] M[a, e, c]
         # is one (n_det n_t, n_a n_e) x (n_a n_e, n_c) product.
         cols = self.columns[k].reshape(n_a * n_e, -1).T      # (n_det n_t, n_a n_e)
         if self.transmission is None:
-            m = (flux[:, None] * self.redistribution[k]).reshape(n_a * n_e, -1)
+            m = (flux[:, None] * red).reshape(n_a * n_e, -1)
             return (cols @ m).reshape(self.shape)
         # Per slice s the photons F_e T[s, e]: one (n_det n_t, n_a n_e) x (n_a n_e, n_s n_c)
         # product.
-        m = (self.transmission[:, k] * flux)[:, None, :, None] * self.redistribution[k]
+        m = (self.transmission[:, k] * flux)[:, None, :, None] * red
         n_s, n_c = m.shape[0], m.shape[3]
         out = cols @ m.transpose(1, 2, 0, 3).reshape(n_a * n_e, n_s * n_c)
         return np.moveaxis(out.reshape(n_det, n_t, n_s, n_c), 2, 0)
@@ -158,13 +188,16 @@ def spectral_columns(
 
     Parameters
     ----------
-    response : ResponseOperator
+    response : ResponseOperator or sequence of ResponseOperator
         A response of the instrument (its binning, model and sky frame are used; its
         energy is replaced by each node energy): of one attitude, or a drifting
         observation's sum over attitude intervals (:func:`rotmod.response.drift.
         drift_response`; :meth:`~rotmod.response.ResponseOperator.components`), where each
         interval sees a source at its own zenith angle and so with its own redistribution
-        (:class:`SpectralColumns`; docs/spectra.md).
+        (:class:`SpectralColumns`; docs/spectra.md).  A sequence: a flight cut into time
+        slices, one response per slice (each folded into its own mask-angle bins, e.g. a
+        drift response over the slice's attitude intervals), of one instrument and binning;
+        the columns then predict counts ``(n_slice, n_det, n_time, n_c)``.
     positions : SkyCoord or (theta, phi)
         The sources (:func:`rotmod.response.columns_at`).
     detector_response : DetectorResponse
@@ -179,26 +212,42 @@ def spectral_columns(
         then those at the instrument.  Three dimensions, ``(n_slice, n_src, n_e)``: a
         flight cut into time slices, one transmission per slice (its altitude and the
         source's zenith angle then; the mean over the slice where they change within it):
-        the columns then predict counts ``(n_slice, n_det, n_time, n_c)``.  The sources'
-        positions in the instrument are the same in every slice (a pointed, tracking
-        gondola; one attitude).
+        the columns then predict counts ``(n_slice, n_det, n_time, n_c)``.  With one
+        response the sources' positions in the instrument are the same in every slice (a
+        pointed, tracking gondola; one attitude); with one response per slice, as many
+        slices.
     interval_transmission : array_like, shape (n_intervals, n_src, n_e), optional
         For a drifting observation instead of ``transmission``: the fraction per attitude
-        interval (one per component of ``response``, in order), e.g. a zenith-pointed
-        balloon, where each source's zenith angle changes through the flight.  Each
-        interval's columns are multiplied by it before the sum over intervals.
+        interval (one per component of ``response``, in order; for time slices the
+        intervals of every slice, slice after slice), e.g. a zenith-pointed balloon, where
+        each source's zenith angle changes through the flight.  Each interval's columns are
+        multiplied by it before the sum over intervals.
 
     Returns
     -------
     SpectralColumns
     """
-    if not isinstance(response, ResponseOperator):
-        raise ParameterError(f"response must be a ResponseOperator, got {type(response).__name__}")
+    sliced = isinstance(response, Sequence)
+    responses = list(response) if sliced else [response]
+    if not responses or not all(isinstance(r, ResponseOperator) for r in responses):
+        raise ParameterError("response must be a ResponseOperator, or a sequence of one or "
+                             f"more (one per time slice), got {response!r:.80}")
+    first = responses[0]
+    for r in responses[1:]:
+        if (r.n_det, r.n_time) != (first.n_det, first.n_time):
+            raise ParameterError(
+                f"response: every time slice's response must have the first's detectors and "
+                f"mask-angle bins ({first.n_det}, {first.n_time}), got ({r.n_det}, "
+                f"{r.n_time})")
     if not isinstance(detector_response, DetectorResponse):
         raise ParameterError("detector_response must be a rotmod.spectral.detector."
                              f"DetectorResponse, got {type(detector_response).__name__}")
-    specs = [spec for _, spec in response.components()]
-    _check_energy_dependence(specs[0].instrument, detector_response)
+    # Each slice's attitude intervals, in order: (slice, response component).
+    specs = [spec for r in responses for _, spec in r.components()]
+    owner = np.concatenate([np.full(len(r.components()), s)
+                            for s, r in enumerate(responses)])
+    for spec in specs:
+        _check_energy_dependence(spec.instrument, detector_response)
     det = specs[0].instrument.detectors
     nodes = np.asarray(detector_response.energies, dtype=float)
     if nodes.size < 2:
@@ -208,11 +257,14 @@ def spectral_columns(
                        for s in specs])
     n_k, n_src = thetas.shape
     trans = None if transmission is None else _transmission(transmission, n_src, nodes.size)
-    if trans is not None and trans.ndim == 3 and n_k > 1:
+    if trans is not None and trans.ndim == 3 and not sliced and n_k > 1:
         raise ParameterError(
             f"transmission: time slices of {trans.shape[0]} transmissions take a response of "
             f"one attitude each; for a drifting observation ({n_k} attitude intervals) give "
-            "interval_transmission, one per interval")
+            "interval_transmission, one per interval, or one response per time slice")
+    if trans is not None and trans.ndim == 3 and sliced and trans.shape[0] != len(responses):
+        raise ParameterError(f"transmission must hold one slice per response "
+                             f"({len(responses)}), got {trans.shape[0]}")
     per_k = None
     if interval_transmission is not None:
         if transmission is not None:
@@ -227,20 +279,23 @@ def spectral_columns(
         per_k = _transmission(interval_transmission, n_src, nodes.size,
                               "interval_transmission")
     share, red, node_theta = _angle_nodes(thetas, detector_response)
-    n_det, n_t = response.n_det, response.n_time
-    check_memory(8.0 * n_src * share.shape[2] * nodes.size * n_det * n_t,
+    n_det, n_t = first.n_det, first.n_time
+    n_slice = (len(responses),) if sliced else ()
+    check_memory(8.0 * len(responses) * n_src * share.shape[2] * nodes.size * n_det * n_t,
                  f"the columns of {n_src} sources at {share.shape[2]} angle nodes and "
-                 f"{nodes.size} energies",
+                 f"{nodes.size} energies" + (f" in {len(responses)} time slices" if sliced
+                                             else ""),
                  hint="tabulate the detector response at fewer energies")
-    cols = np.zeros((n_src, share.shape[2], nodes.size, n_det, n_t))
+    cols = np.zeros((*n_slice, n_src, share.shape[2], nodes.size, n_det, n_t))
     area = np.pi * det.radius**2 * np.cos(np.radians(thetas))       # (n_intervals, n_src)
     for e, energy in enumerate(nodes):
-        parts = component_columns(response, positions, energy=energy)
+        parts = [p for r in responses for p in component_columns(r, positions, energy=energy)]
         for k, part in enumerate(parts):
             at = np.moveaxis(part, 2, 0) * area[k][:, None, None]
             if per_k is not None:
                 at = at * per_k[k, :, e][:, None, None]
-            cols[:, :, e] += share[k][:, :, None, None] * at[:, None]
+            into = cols[owner[k]] if sliced else cols
+            into[:, :, e] += share[k][:, :, None, None] * at[:, None]
     if trans is not None and trans.ndim == 2:
         cols *= trans[:, None, :, None, None]
     return SpectralColumns(cols, red, nodes,
@@ -423,8 +478,8 @@ def fit_spectra(
     Parameters
     ----------
     columns : SpectralColumns
-        The sources' energy-resolved response (:func:`spectral_columns`; with a
-        per-slice transmission for a flight's time slices).
+        The sources' energy-resolved response (:func:`spectral_columns`; for a flight's
+        time slices, with a transmission or columns per slice).
     counts : array_like, shape (n_det, n_time, n_c) or (n_slice, n_det, n_time, n_c)
         Counts (e.g. events folded per channel, :func:`fold_channels`, per time slice);
         expected counts (an Asimov data set) are accepted too.
@@ -646,7 +701,7 @@ def _poisson_bins(columns: Any, counts: Any, exposure: Any, models: Sequence[Any
     expo = _exposure(exposure, shape[:-1])
     if not np.any(expo > 0):
         raise ParameterError("exposure is 0 everywhere: nothing was observed to fit")
-    _check_models(models, columns.columns.shape[0])
+    _check_models(models, columns.n_sources)
     use = np.flatnonzero(np.broadcast_to((expo > 0)[..., None], y.shape))
     yv = y.astype(float).ravel()[use]
     t3 = np.broadcast_to(expo[..., None], y.shape).ravel()[use]
@@ -739,7 +794,7 @@ def extract_spectrum(
     """
     if not isinstance(columns, SpectralColumns):
         raise ParameterError(f"columns must be SpectralColumns, got {type(columns).__name__}")
-    n_src = columns.columns.shape[0]
+    n_src = columns.n_sources
     if isinstance(source, bool) or not isinstance(source, int | np.integer) or not (
             0 <= source < n_src):
         raise ParameterError(f"source must be the index of one of the {n_src} sources "
@@ -747,7 +802,7 @@ def extract_spectrum(
     subdivide = as_int(subdivide, "subdivide", 1)
     if models is None:
         models = [PowerLaw(1.0, -2.0)] * n_src
-    if columns.transmission is not None:
+    if len(columns.shape) == 4:
         raise ParameterError("columns: a flight's time slices are fitted with fit_spectra; "
                              "extract a spectrum from one interval's columns")
     bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure)
@@ -855,7 +910,7 @@ def expected_counts(columns: SpectralColumns, exposure: Any, models: Sequence[Sp
     as detectors, as a 2-D exposure is: give the 3-D shape)."""
     shape = columns.shape
     expo = _exposure(exposure, shape[:-1])
-    _check_models(models, columns.columns.shape[0])
+    _check_models(models, columns.n_sources)
     b = np.asarray(background, dtype=float)
     if len(shape) == 4 and b.ndim == 2:
         _check_per_slice(b.shape, shape[:-2], "background", "n_channels")

@@ -1,8 +1,10 @@
 """Where the truth stands among the search's peaks, for draws of the burst calibration.
 
 For each draw (the calibration's seed and set-up, ``benchmarks/bursts_calibration.py``) the
-burst is simulated, searched and analysed up to the score map's distinct peaks, then stopped
-(no climbs: seconds per burst instead of minutes).  Printed per draw, one JSON line:
+burst is simulated, searched and analysed up to the first score map's distinct peaks (the
+pulses seen from no position; ``localise_burst`` then makes a second map, weighted by the
+pulses seen from the likeliest of them, which this diagnostic predates and leaves out), then
+stopped (no climbs: seconds per burst instead of minutes).  Printed per draw, one JSON line:
 
 * the peak nearest the truth: its distance (deg), its place among the peaks by score and by
   exact likelihood at the pixel centre, and its TS below the likeliest peak's

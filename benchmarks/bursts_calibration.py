@@ -189,7 +189,9 @@ def run_one(i: int, seed: int, inst, att, cache: dict, do_nolc: bool) -> dict:
                pulses=None if bp.pulses is None else bp.pulses.pulses.tolist())
     rec.update(truth_diagnostic(burst, pos))
     # Where the truth stands in the search's score map: the rank of its pixel (0 = the map's
-    # best) and its score below the best.
+    # best) and its score below the best.  ``bp.score`` is the map the search ended with:
+    # since eea3768 the second map (weighted by the pulses seen from the first's likeliest
+    # peak), before it the only one.
     sc = bp.score
     k = int(np.argmin(sc.grid.sky_coords().separation(pos).deg))
     s_map = np.nan_to_num(sc.score, nan=-np.inf)
@@ -611,7 +613,8 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(f"--resume: {out} has pulses of shape {data['config'].get('shape')}, "
                      f"not {args.shape}")
         data["config"]["n"] = args.n
-        if src != data["config"].get("src_md5"):
+        last = (data["config"].get("resumed") or [data["config"]])[-1].get("src_md5")
+        if src != last:
             # the pipeline's source changed since the run started: say so in the file, so
             # that a reader can tell which bursts ran on which code
             data["config"].setdefault("resumed", []).append({

@@ -9,6 +9,17 @@ deg, so its transmission through the air changes with both the altitude and the 
 The gondola tracks it: the source stays at one position in the instrument, (4.5, 2.5) deg in
 the grid's tangent plane (5.15 deg off axis).
 
+``--pointing zenith``: the gondola points at the zenith instead and the sky drifts through
+the field.  The source (declination 3 deg north of the zenith) transits at mid-flight: its
+angle from the axis, its zenith angle, goes 24.3 -> 3.0 -> 24.3 deg, so both its modulation
+and its path through the air change minute by minute.  The attitude is sampled every
+``--step`` s (default 60 s, one turn); each slice is a drift response over its own
+intervals (:func:`rotmod.response.drift.drift_response` on a 15 x 15 deg celestial grid
+centred on the source) and the spectral columns are one per slice
+(:func:`rotmod.sources.spectra.spectral_columns` of the slices' responses), each interval
+through its own transmission.  The image is that of the whole flight's drift response.
+``folded`` needs the tracked source's single set of columns and is refused here.
+
 The counts: in each slice (default 16 slices of 15 min, each folded into mask-angle bins of
 the 60 s rotation) and each energy channel, Poisson draws from the exact expected counts: the
 source through the slice's mean transmission (at every node energy) plus the background of
@@ -64,15 +75,16 @@ import os
 import time
 
 import numpy as np
+from astropy.coordinates import SkyCoord
 
 from rotmod import Instrument
 from rotmod.energy import EnergyResolution
 from rotmod.geometry import DetectorArray, Mask
 from rotmod.materials import Material
 from rotmod.reconstruction import reconstruct
-from rotmod.reconstruction.metrics import angular_distance
 from rotmod.response import build_response
-from rotmod.sky import SkyGrid
+from rotmod.response.drift import drift_response
+from rotmod.sky import Attitude, CelestialGrid, SkyGrid
 from rotmod.sources.spectra import (
     SpectralColumns,
     expected_counts,
@@ -95,7 +107,12 @@ INTERNAL = PowerLaw(0.1, -1.0)
 FITS = ("template", "constant", "levels", "folded", "shape", "shape_true", "template_tilt",
         "shape_tilt", "shape_true_tilt")
 #: The arguments that make the expected counts: runs merged must agree on them.
-SETUP_ARGS = ("slices", "bins", "rings", "nodes", "channels", "photons")
+SETUP_ARGS = ("slices", "bins", "rings", "nodes", "channels", "photons", "pointing", "step")
+#: Zenith-pointed flight: the source's right ascension (any: it transits at mid-flight) and
+#: its declination's offset north of the zenith (its smallest angle from the axis, deg).
+ZENITH_RA, ZENITH_OFFSET = 180.0, 3.0
+#: Sidereal rate of the hour angle (deg per hour).
+SIDEREAL = 15.041
 #: The Poisson draws' seed of runs made before --seed was an argument (then fixed).
 OLD_SEED = 2026
 
@@ -113,9 +130,40 @@ def zenith(t_h: np.ndarray) -> np.ndarray:
                                 + np.cos(phi) * np.cos(dec) * np.cos(ha)))
 
 
+def zenith_flight(inst: Instrument, args: argparse.Namespace, nodes: np.ndarray, dr,
+                  atm: Atmosphere) -> dict:
+    """A zenith-pointed flight: the attitude every ``args.step`` s, each slice's drift
+    response, the source's spectral columns per slice (each interval through its own
+    transmission), the whole flight's drift response for the image, and the source's
+    per-slice mean zenith angle."""
+    n_k = round(HOURS * 3600.0 / args.step)
+    if n_k % args.slices:
+        raise SystemExit(f"--step: {args.step:g} s does not cut the flight into "
+                         f"{args.slices} slices of whole intervals")
+    t = (np.arange(n_k) + 0.5) * args.step                   # interval mid-times (s)
+    lst = ZENITH_RA + SIDEREAL * (t / 3600.0 - HOURS / 2.0)
+    atts = [Attitude(float(a), LATITUDE, roll=0.0) for a in lst]
+    src = SkyCoord([ZENITH_RA], [LATITUDE + ZENITH_OFFSET], unit="deg")
+    theta = np.array([float(a.to_instrument(src)[0].to_value("deg")[0]) for a in atts])
+    # Each interval's transmission: the source's zenith angle is its angle from the axis.
+    trans = atm.transmission(nodes[None, :], theta[:, None], altitude(t / 3600.0)[:, None])
+    intervals = [(float(m - args.step / 2), float(m + args.step / 2), a)
+                 for m, a in zip(t, atts, strict=True)]
+    grid = CelestialGrid.around(src[0], (15, 15), 1.0, atts[n_k // 2])
+    per = n_k // args.slices
+    slices = [drift_response(inst, grid, args.bins, intervals[i * per:(i + 1) * per],
+                             energy=300.0) for i in range(args.slices)]
+    cols = spectral_columns(slices, src, dr, interval_transmission=trans[:, None, :])
+    at = int(np.argmin(grid.sky_coords().separation(src[0]).deg))
+    return {"cols": cols, "grid": grid, "source_pixel": at,
+            "resp": drift_response(inst, grid, args.bins, intervals, energy=300.0),
+            "zenith": theta.reshape(args.slices, per).mean(axis=1)}
+
+
 def setup(args: argparse.Namespace) -> dict:
-    """The instrument, its energy-resolved columns with the per-slice transmission, the
-    background templates per slice and the imaging response."""
+    """The instrument, its energy-resolved columns with the per-slice transmission (or, for
+    a zenith-pointed flight, per-slice columns), the background templates per slice and the
+    imaging response."""
     hexa = DetectorArray.hexagonal(5.0, rings=args.rings)
     det = DetectorArray(hexa.positions, 5.0, thickness=5.0,
                         material=Material("NaI", density=3.67))
@@ -137,21 +185,30 @@ def setup(args: argparse.Namespace) -> dict:
     t_h = (np.arange(n_s * per) + 0.5) / 60.0
     h, z = altitude(t_h), zenith(t_h)
     atm = Atmosphere.from_msis()
-    trans = atm.transmission(nodes[None, :], z[:, None], h[:, None])      # (min, n_e)
-    trans = trans.reshape(n_s, per, -1).mean(axis=1)[:, None, :]          # (n_s, 1, n_e)
-    resp = build_response(inst, grid, args.bins, energy=300.0)
-    cols = spectral_columns(resp, ([pos[0]], [pos[1]]), dr, transmission=trans)
+    if args.pointing == "zenith":
+        flight = zenith_flight(inst, args, nodes, dr, atm)
+    else:
+        trans = atm.transmission(nodes[None, :], z[:, None], h[:, None])      # (min, n_e)
+        trans = trans.reshape(n_s, per, -1).mean(axis=1)[:, None, :]          # (n_s, 1, n_e)
+        resp = build_response(inst, grid, args.bins, energy=300.0)
+        flight = {"cols": spectral_columns(resp, ([pos[0]], [pos[1]]), dr, transmission=trans),
+                  "grid": grid, "source_pixel": _pixel_at(grid, src_xy),
+                  "resp": resp, "zenith": z.reshape(n_s, per).mean(axis=1)}
     bg = BalloonBackground(atm, mask=mask)
     comp = bg.flight_components(dr, det, h, step=0.1)
     tmpl = {k: v.reshape(n_s, per, -1).mean(axis=1) for k, v in comp.items()}
     tmpl["internal"] = np.broadcast_to(internal_rates(INTERNAL, channels), (n_s, channels.size - 1))
     slice_s = per * 60.0
     expo = np.full((n_s, args.bins), slice_s / args.bins)
-    return {"inst": inst, "grid": grid, "src_xy": src_xy, "pos": pos, "cols": cols,
-            "templates": tmpl, "exposure": expo, "channels": channels, "resp": resp,
+    return {"inst": inst, **flight, "templates": tmpl, "exposure": expo, "channels": channels,
             "altitude": h.reshape(n_s, per).mean(axis=1),
-            "zenith": z.reshape(n_s, per).mean(axis=1),
             "depth": atm.column_depth(h, 0.0).reshape(n_s, per).mean(axis=1)}
+
+
+def _pixel_at(grid: SkyGrid, xy: tuple[float, float]) -> int:
+    """The index of the pixel centred at tangent-plane ``xy`` (deg)."""
+    xc, yc = grid.pixel_centers()
+    return int(np.flatnonzero(np.isclose(xc, xy[0]) & np.isclose(yc, xy[1]))[0])
 
 
 def tilted(tmpl: dict, channels: np.ndarray, tilt: float) -> dict:
@@ -164,18 +221,19 @@ def tilted(tmpl: dict, channels: np.ndarray, tilt: float) -> dict:
 def image(s: dict, y: np.ndarray) -> tuple[float, float]:
     """The flight's image in 150-500 keV (folded counts summed over the slices; MLEM, the
     background fitted per detector): the distance (deg) from the source to the brightest
-    pixel, and the source pixel's value over the brightest other pixel's."""
+    pixel's centre, and the source pixel's value over the brightest other pixel's."""
     ch = s["channels"]
     band = (ch[:-1] >= 150.0) & (ch[1:] <= 500.0)
     counts = y[..., band].sum(axis=(0, 3))
     expo = s["exposure"].sum(axis=0)
     res = reconstruct(s["resp"], counts, "mlem", exposure=expo, fit_background=True)
-    img = np.asarray(res.image).reshape(s["grid"].shape)
-    xc, yc = s["grid"].pixel_centers()
-    iy, ix = np.unravel_index(np.argmax(img), img.shape)
-    at = np.isclose(xc, s["src_xy"][0]) & np.isclose(yc, s["src_xy"][1])
-    contrast = float(img[at][0] / np.max(img[~at]))
-    return float(angular_distance(s["grid"], xc[iy, ix], yc[iy, ix], *s["src_xy"])), contrast
+    img = np.asarray(res.image).ravel()
+    at = s["source_pixel"]
+    contrast = float(img[at] / np.max(np.delete(img, at)))
+    th, ph = (v.to_value("rad") for v in s["grid"].directions())
+    v = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+    cos = np.clip(v[:, int(np.argmax(img))] @ v[:, at], -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos))), contrast
 
 
 def main() -> None:
@@ -194,6 +252,11 @@ def main() -> None:
     ap.add_argument("--asimov-tilts", default="",
                     help="comma-separated smaller tilts of template_tilt's Asimov fit")
     ap.add_argument("--seed", type=int, default=2026, help="seed of the Poisson draws")
+    ap.add_argument("--pointing", choices=("track", "zenith"), default="track",
+                    help="the gondola tracks the source, or points at the zenith (the sky "
+                         "drifts through the field)")
+    ap.add_argument("--step", type=float, default=60.0,
+                    help="with --pointing zenith: the attitude's step (s)")
     ap.add_argument("--no-image", action="store_true", help="skip the images")
     ap.add_argument("--out", default=None, help="JSON file for the results")
     ap.add_argument("--merge", nargs="+", default=None,
@@ -202,6 +265,9 @@ def main() -> None:
     if args.merge:
         merge(args.merge)
         return
+    if args.pointing == "zenith" and "folded" in args.fits.split(","):
+        raise SystemExit("--fits: 'folded' takes the tracked source's one set of columns; "
+                         "with --pointing zenith each slice has its own (drop 'folded')")
     t0 = time.time()
     s = setup(args)
     t_setup = time.time() - t0
@@ -227,9 +293,9 @@ def main() -> None:
     fits = {k: fits[k] for k in args.fits.split(",")}
     # The flight's folded counts (slices summed): the sources through the flight's mean
     # transmission (equal slices), one interval, a constant level per detector and channel.
-    folded = SpectralColumns(cols.columns * cols.transmission.mean(axis=0)[:, None, :, None, None],
-                             cols.redistribution, cols.energies, cols.channel_edges,
-                             cols.theta)
+    folded = None if "folded" not in fits else SpectralColumns(
+        cols.columns * cols.transmission.mean(axis=0)[:, None, :, None, None],
+        cols.redistribution, cols.energies, cols.channel_edges, cols.theta)
 
     def data(name: str, y: np.ndarray) -> tuple:
         if name == "folded":
@@ -386,9 +452,16 @@ def merge(paths: list[str]) -> None:
         with open(p) as f:
             reports.append(json.load(f))
     args = [rep["args"] for rep in reports]
+    def setting(a: dict, k: str) -> object:
+        """A run's value of ``k``; runs made before --pointing existed tracked their source,
+        and a tracked source's --step is unused."""
+        if k == "step" and a.get("pointing", "track") == "track":
+            return None
+        return a.get(k, "track" if k == "pointing" else None)
+
     for k in SETUP_ARGS:
-        if len({a[k] for a in args}) > 1:
-            each = ", ".join(f"{p}: {a[k]}" for p, a in zip(paths, args, strict=True))
+        if len({setting(a, k) for a in args}) > 1:
+            each = ", ".join(f"{p}: {setting(a, k)}" for p, a in zip(paths, args, strict=True))
             raise SystemExit(f"--merge: the runs differ in --{k} ({each})")
     seeds = [rep.get("seed", a.get("seed", OLD_SEED)) for rep, a in zip(reports, args, strict=True)]
     if len(set(seeds)) < len(seeds):

@@ -306,6 +306,10 @@ def test_time_slices_bad_input(setup, slices) -> None:
     other = drift_response(inst, grid, N_T + 1, INTERVALS[2:], energy=300.0)
     with pytest.raises(ParameterError, match="mask-angle bins"):
         spectral_columns([slices[0], other], SOURCES, table)
+    slow = dataclasses.replace(inst, rotation_period=120.0)
+    with pytest.raises(ParameterError, match="rotation period"):
+        spectral_columns([slices[0], drift_response(slow, grid, N_T, INTERVALS[2:],
+                                                    energy=300.0)], SOURCES, table)
     with pytest.raises(ParameterError, match="one slice per response"):
         spectral_columns(slices, SOURCES, table, transmission=np.ones((3, 2, 7)))
     with pytest.raises(ParameterError, match="interval_transmission must have shape"):

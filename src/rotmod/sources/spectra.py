@@ -20,7 +20,8 @@ trial of the spectral parameters the backgrounds are profiled out exactly
 (:func:`rotmod.sources.likelihood.maximise`), and the spectral parameters minimise ``-2 ln L``
 (:func:`rotmod.spectral.minimise_statistic`, the one optimiser of every spectral fit).  For a
 balloon flight cut into time slices, the sources' transmission through the air is given per
-slice (:func:`spectral_columns`) and the background as templates in time and energy (e.g.
+slice -- and for a drifting flight the response too, one per slice (:func:`spectral_columns`)
+-- and the background as templates in time and energy (e.g.
 :meth:`rotmod.spectral.background.BalloonBackground.flight_components`) whose scales the same
 fit frees per component, per detector, or per detector and channel.
 
@@ -248,6 +249,13 @@ def spectral_columns(
                             for s, r in enumerate(responses)])
     for spec in specs:
         _check_energy_dependence(spec.instrument, detector_response)
+        if (spec.time_bins != specs[0].time_bins
+                or spec.instrument.rotation_period != specs[0].instrument.rotation_period):
+            raise ParameterError(
+                "response: every attitude interval and time slice must share the first's "
+                f"mask-angle bins and rotation period ({specs[0].time_bins}, "
+                f"{specs[0].instrument.rotation_period:g} s), got {spec.time_bins}, "
+                f"{spec.instrument.rotation_period:g} s")
     det = specs[0].instrument.detectors
     nodes = np.asarray(detector_response.energies, dtype=float)
     if nodes.size < 2:
@@ -804,7 +812,8 @@ def extract_spectrum(
         models = [PowerLaw(1.0, -2.0)] * n_src
     if len(columns.shape) == 4:
         raise ParameterError("columns: a flight's time slices are fitted with fit_spectra; "
-                             "extract a spectrum from one interval's columns")
+                             "extract a spectrum from one slice's columns (spectral_columns "
+                             "of its response)")
     bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure)
     n_det, _, n_c = columns.shape
     expo = bins.exposure

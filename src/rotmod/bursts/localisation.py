@@ -678,6 +678,7 @@ def localise_burst(
         w = seen.shape(counts.edges)
         score = search_map(counts, SourceFitter(unit.with_weight(w), data), side, rad, w,
                            energy=energy, model=model, cache=cache)
+        # On the first map's grid (the same cone and nside), so its directions serve.
         more = _peaks(th.to_value(u.rad), ph.to_value(u.rad), score.score, 2.0 * pixel,
                       SCORE_PEAKS)
         coords = np.concatenate([coords, score.grid.sky_coords()[more]])

@@ -297,7 +297,9 @@ def spectral_columns(
     cols = np.zeros((*n_slice, n_src, share.shape[2], nodes.size, n_det, n_t))
     area = np.pi * det.radius**2 * np.cos(np.radians(thetas))       # (n_intervals, n_src)
     for e, energy in enumerate(nodes):
-        parts = [p for r in responses for p in component_columns(r, positions, energy=energy)]
+        # One interval's columns at a time (a day's flight has thousands of intervals).
+        parts = itertools.chain.from_iterable(component_columns(r, positions, energy=energy)
+                                              for r in responses)
         for k, part in enumerate(parts):
             at = np.moveaxis(part, 2, 0) * area[k][:, None, None]
             if per_k is not None:

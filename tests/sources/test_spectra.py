@@ -30,43 +30,7 @@ from rotmod.sources.spectra import (
     spectral_columns,
 )
 from rotmod.spectral import Band, Gaussian, PowerLaw, RateSpectrum, fit_spectrum
-from rotmod.spectral.detector import tabulate_response
-
-NAI = Material("NaI", density=3.67)
-NODES = np.geomspace(60.0, 3000.0, 48)
-CHANNELS = np.geomspace(50.0, 2500.0, 25)
-
-
-def _instrument(mask_material: Material | None = None) -> Instrument:
-    """7 detectors of 5 cm x 5 cm NaI under 3/3/3 cm slats 1 m up (the survey instrument's
-    unit cell)."""
-    hexa = DetectorArray.hexagonal(5.0, rings=1)
-    det = DetectorArray(hexa.positions, 5.0, thickness=5.0, material=NAI)
-    mask = Mask(3.0, 3.0, 3.0, 100.0, material=mask_material or Material("Pb"))
-    return Instrument(mask, det, rotation_period=60.0)
-
-
-@pytest.fixture(scope="module")
-def detector_response():
-    inst = _instrument()
-    return tabulate_response(inst.detectors, NODES, [0.0, 10.0, 40.0], CHANNELS,
-                             resolution=EnergyResolution.nai(), n_photons=2000, seed=1)
-
-
-@pytest.fixture(scope="module")
-def two_sources(detector_response):
-    """Two sources 5 deg and 3 deg off axis on opposite sides, 24 mask-angle bins."""
-    resp = build_response(_instrument(), SkyGrid.square(4, 1.0), 24, energy=300.0)
-    return spectral_columns(resp, ([5.0, 3.0], [30.0, 200.0]), detector_response)
-
-
-@pytest.fixture(scope="module")
-def columns(two_sources):
-    """The first of them alone (its columns are computed per source: the same numbers as
-    ``spectral_columns(resp, (5.0, 30.0), ...)``, bit for bit, without a second build)."""
-    c = two_sources
-    return SpectralColumns(c.columns[:1], c.redistribution[:1], c.energies, c.channel_edges,
-                           c.theta[:1])
+from tests.sources.conftest import CHANNELS, NODES, spectral_instrument
 
 
 def test_transparent_mask_gives_the_detector_monte_carlo(detector_response) -> None:
@@ -78,7 +42,7 @@ def test_transparent_mask_gives_the_detector_monte_carlo(detector_response) -> N
     probability has a statistical error below 1 % at 2000 photons (forced first interaction)
     and the exact model's is exact, so 3 %."""
     glass = Material("Pb", mass_attenuation=0.0)
-    resp = build_response(_instrument(glass), SkyGrid.square(4, 1.0), 12, energy=300.0)
+    resp = build_response(spectral_instrument(glass), SkyGrid.square(4, 1.0), 12, energy=300.0)
     cols = spectral_columns(resp, (40.0, 30.0), detector_response)
     k = 20  # a monoenergetic line at one node: 1 photon cm^-2 s^-1 in that node's bin
     per_bin = cols.columns[0, 0, k][..., None] * cols.redistribution[0, 0, k]  # (det, t, c)
@@ -92,7 +56,7 @@ def test_atmosphere_scales_each_energy(detector_response) -> None:
     """An atmospheric transmission multiplies each true energy's column (a source seen through
     a column of air counts as a weaker source at that energy, nothing else changes), and a
     transmission outside [0, 1] is refused."""
-    resp = build_response(_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
+    resp = build_response(spectral_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
     bare = spectral_columns(resp, (5.0, 30.0), detector_response)
     trans = np.exp(-0.1 * (NODES / 100.0) ** -0.5)
     air = spectral_columns(resp, (5.0, 30.0), detector_response, transmission=trans)
@@ -204,7 +168,7 @@ def test_bad_input(columns, detector_response) -> None:
     with pytest.raises(ParameterError, match="tabulated for 5 cm x 5 cm NaI"):
         spectral_columns(build_response(inst, SkyGrid.square(2, 1.0), 6, energy=300.0),
                          (1.0, 0.0), detector_response)
-    fixed = _instrument(Material("Pb", mass_attenuation=0.1))
+    fixed = spectral_instrument(Material("Pb", mass_attenuation=0.1))
     with pytest.raises(ParameterError, match="fixed attenuation coefficient"):
         spectral_columns(build_response(fixed, SkyGrid.square(2, 1.0), 6, energy=300.0),
                          (1.0, 0.0), detector_response)
@@ -360,7 +324,7 @@ def flight(detector_response):
     """One source 4 deg off axis over four slices of 12 mask-angle bins, its transmission
     falling by slice (the balloon sinks, the source sets), as sliced columns; and the same
     columns for one interval (no transmission)."""
-    resp = build_response(_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
+    resp = build_response(spectral_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
     depth = np.array([4.0, 5.0, 6.5, 8.0])[:, None, None]   # g/cm2 along the line of sight
     trans = np.exp(-depth * 0.15 * (NODES / 100.0) ** -0.35)
     cols = spectral_columns(resp, (4.0, 60.0), detector_response, transmission=trans)
@@ -522,7 +486,7 @@ def test_template_bad_input(flight, detector_response) -> None:
     # An unsliced fit takes (n_c,) or (n_det, n_c) templates and nothing with time.
     with pytest.raises(ParameterError, match=r"must have shape \(24,\) or \(7, 24\)"):
         fit_spectra(one, y[0], np.ones(12), start, background=tmpl["soft"])
-    resp = build_response(_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
+    resp = build_response(spectral_instrument(), SkyGrid.square(4, 1.0), 12, energy=300.0)
     with pytest.raises(ParameterError, match="transmission must broadcast"):
         spectral_columns(resp, (4.0, 60.0), detector_response,
                          transmission=np.ones((2, 3, 5)))

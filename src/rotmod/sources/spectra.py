@@ -517,47 +517,12 @@ def fit_spectra(
     -------
     SourceSpectraFit
     """
-    bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure)
-    names, tmpl = _templates(background, columns.shape, background_free)
-    if tmpl is not None and off_counts is not None:
-        raise ParameterError("off_counts: a background measured off the source enters as "
-                             "constant levels; with a background template, fit the off "
-                             "interval's counts as time slices of their own")
+    lik = _SpectraLikelihood(columns, counts, exposure, models, background, background_free,
+                             off_counts, off_exposure)
+    found = minimise_statistic(lik.statistic, models, free)
+    ll, best = lik.profile(list(found.models))
+    scales, yv, groups, tmpl = best.x, lik.bins.y, lik.groups, lik.template
     n_det, n_c = columns.shape[-3], columns.shape[-1]
-    yv, n_on, use = bins.y, bins.n_on, bins.flat
-    # Each bin's background column: its exposure times the template there.
-    value = bins.value.copy()
-    if tmpl is not None:
-        per_bin = np.broadcast_to(tmpl[..., None, :], (len(names), *columns.shape))
-        value = per_bin.reshape(len(names), -1)[:, use] * value
-    if background_free == "component":
-        A, groups = value.T, None
-        n_scales: tuple[int, ...] = (len(names),)
-    else:
-        value = value if tmpl is None else value[0]
-        level = background_free == "level"
-        index = bins.group if level else bins.group // n_c
-        groups = Groups(index, value, n_det * n_c if level else n_det)
-        A = np.zeros((yv.size, 0))
-        n_scales = (n_det, n_c) if level else (n_det,)
-    state: dict[str, Any] = {"x0": None}
-
-    def profile(ms: list[SpectralModel]) -> tuple[float, Any]:
-        m0 = np.zeros(yv.size)
-        m0[:n_on] = sum(columns.rates(k, m).ravel()[use]
-                        for k, m in enumerate(ms)) * bins.value[:n_on]
-        best = maximise(A, yv, m0, state["x0"], groups=groups)
-        return best.loglike, best
-
-    def statistic(ms: list[SpectralModel]) -> float:
-        ll, best = profile(ms)
-        if np.isfinite(ll):
-            state["x0"] = np.maximum(best.x, 1e-12 * max(yv.mean(), 1.0))
-        return -2.0 * ll
-
-    found = minimise_statistic(statistic, models, free)
-    ll, best = profile(list(found.models))
-    scales = best.x
     # The scales' covariance with the spectral parameters held (the inverse Hessian of
     # -ln L in the scales), then marginal: + J C J^T, J = d(scales)/d(parameters) along the
     # profile (central differences at 0.3 sigma, as the parameters' own Hessian steps;
@@ -567,7 +532,7 @@ def fit_spectra(
     else:
         h_gg = groups.sum(groups.value**2 * yv / np.where(best.mu > 0, best.mu, np.inf)**2)
         cov = np.diag(np.where(h_gg > 0, 1.0 / np.where(h_gg > 0, h_gg, 1.0), np.inf))
-    jac, inner = _scale_derivatives(profile, found, scales)
+    jac, inner = _scale_derivatives(lik.profile, found, scales)
     if inner.size:
         c = found.covariance[np.ix_(inner, inner)]
         cov = cov + jac @ c @ jac.T
@@ -582,8 +547,74 @@ def fit_spectra(
                           else scales[:, None])
     return SourceSpectraFit(found.models, found.errors, found.pegged, found.covariance,
                             np.array(rate), float(ll),
-                            found.converged, scales.reshape(n_scales),
-                            errs.reshape(n_scales))
+                            found.converged, scales.reshape(lik.n_scales),
+                            errs.reshape(lik.n_scales))
+
+
+class _SpectraLikelihood:
+    """The Poisson likelihood of :func:`fit_spectra` (and of the threeML plugin,
+    :class:`rotmod.sources.threeml.RotmodLike`): the counts laid out as bins with the
+    background's columns; :meth:`profile` maximises it over the background's scales for
+    given spectra.  The arguments are :func:`fit_spectra`'s, checked here; ``warm_start``
+    False starts every profile from the scales of the background alone, so that ``ln L`` is
+    a function of the spectra alone, bit for bit (threeML checks its minimum so), at the
+    cost of a few more iterations per profile."""
+
+    def __init__(self, columns: SpectralColumns, counts: Any, exposure: Any,
+                 models: Sequence[SpectralModel], background: Any, background_free: str,
+                 off_counts: Any, off_exposure: Any, *, warm_start: bool = True) -> None:
+        bins = _poisson_bins(columns, counts, exposure, models, off_counts, off_exposure)
+        names, tmpl = _templates(background, columns.shape, background_free)
+        if tmpl is not None and off_counts is not None:
+            raise ParameterError("off_counts: a background measured off the source enters as "
+                                 "constant levels; with a background template, fit the off "
+                                 "interval's counts as time slices of their own")
+        n_det, n_c = columns.shape[-3], columns.shape[-1]
+        # Each bin's background column: its exposure times the template there.
+        value = bins.value.copy()
+        if tmpl is not None:
+            per_bin = np.broadcast_to(tmpl[..., None, :], (len(names), *columns.shape))
+            value = per_bin.reshape(len(names), -1)[:, bins.flat] * value
+        self.groups: Groups | None = None
+        if background_free == "component":
+            self.A = value.T
+            self.n_scales: tuple[int, ...] = (len(names),)
+        else:
+            value = value if tmpl is None else value[0]
+            level = background_free == "level"
+            index = bins.group if level else bins.group // n_c
+            self.groups = Groups(index, value, n_det * n_c if level else n_det)
+            self.A = np.zeros((bins.y.size, 0))
+            self.n_scales = (n_det, n_c) if level else (n_det,)
+        self.columns, self.bins, self.template = columns, bins, tmpl
+        self.warm_start = warm_start
+        self._x0: np.ndarray | None = None
+        if not warm_start:
+            # Every profile starts from the background alone, the first one too.
+            self._x0 = self._start(maximise(self.A, bins.y, np.zeros(bins.y.size),
+                                            groups=self.groups).x)
+
+    def profile(self, models: Sequence[SpectralModel]) -> tuple[float, Any]:
+        """``ln L`` maximised over the background's scales for the sources' ``models``, and
+        that maximum (:class:`rotmod.sources.likelihood.LinearPoissonFit`)."""
+        bins = self.bins
+        m0 = np.zeros(bins.y.size)
+        m0[:bins.n_on] = sum(self.columns.rates(k, m).ravel()[bins.flat]
+                             for k, m in enumerate(models)) * bins.value[:bins.n_on]
+        best = maximise(self.A, bins.y, m0, self._x0, groups=self.groups)
+        return best.loglike, best
+
+    def statistic(self, models: Sequence[SpectralModel]) -> float:
+        """``-2 ln L`` profiled (:meth:`profile`); with ``warm_start`` the next profile
+        starts from its scales (a minimiser's trials are close to each other)."""
+        ll, best = self.profile(models)
+        if np.isfinite(ll) and self.warm_start:
+            self._x0 = self._start(best.x)
+        return -2.0 * ll
+
+    def _start(self, x: np.ndarray) -> np.ndarray:
+        """Scales as a start: kept off 0, where the Poisson iteration could not move them."""
+        return np.maximum(x, 1e-12 * max(self.bins.y.mean(), 1.0))
 
 
 def _scale_derivatives(profile: Any, found: Any, scales: np.ndarray

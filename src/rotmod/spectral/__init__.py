@@ -18,7 +18,14 @@ The first two are re-exported here; the last three are imported from their modul
 numba kernels and astropy's coordinates, which a reader of spectra does not need).
 """
 
-from rotmod.spectral.models import Band, CutoffPowerLaw, Gaussian, PowerLaw, SpectralModel
+from rotmod.spectral.models import (
+    Band,
+    CutoffPowerLaw,
+    Function,
+    Gaussian,
+    PowerLaw,
+    SpectralModel,
+)
 from rotmod.spectral.spectrum import (
     CountsSpectrum,
     RateSpectrum,
@@ -35,6 +42,7 @@ __all__ = [
     "Band",
     "CountsSpectrum",
     "CutoffPowerLaw",
+    "Function",
     "Gaussian",
     "PowerLaw",
     "RateSpectrum",

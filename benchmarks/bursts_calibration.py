@@ -555,6 +555,11 @@ def _pipeline_md5() -> dict[str, str]:
                       rotmod.bursts.posterior, rotmod.bursts.pulses)}
 
 
+#: The configuration that makes files shards of one run (--report merges only those).
+SAME_RUN = ("n", "seed", "shape", "src_md5", "no_lc_subset", "radius", "energy", "background",
+            "amplitude")
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n", type=int, default=100, help="bursts (default 100)")
@@ -587,7 +592,16 @@ def main(argv: list[str] | None = None) -> None:
     if args.report is not None:
         data = json.loads(out.read_text())
         for extra in args.report:
-            data["bursts"] += json.loads(extra.read_text())["bursts"]
+            other = json.loads(extra.read_text())
+            # Shards of one run only: a file of another run (another pipeline or draws)
+            # would replace bursts of the same index and mix two calibrations.
+            for key in SAME_RUN:
+                if other["config"].get(key) != data["config"].get(key):
+                    raise SystemExit(
+                        f"--report: {extra} is not a shard of the run in --out {out} (its "
+                        f"config {key!r} differs: {other['config'].get(key)!r} against "
+                        f"{data['config'].get(key)!r})")
+            data["bursts"] += other["bursts"]
         data["bursts"] = sorted({r["index"]: r for r in data["bursts"]}.values(),
                                 key=lambda r: r["index"])
         if args.compare:

@@ -75,7 +75,7 @@ import os
 import time
 
 import numpy as np
-from astropy.coordinates import SkyCoord
+from astropy.coordinates import SkyCoord, angular_separation
 
 from rotmod import Instrument
 from rotmod.energy import EnergyResolution
@@ -230,10 +230,13 @@ def image(s: dict, y: np.ndarray) -> tuple[float, float]:
     img = np.asarray(res.image).ravel()
     at = s["source_pixel"]
     contrast = float(img[at] / np.max(np.delete(img, at)))
+    # Any grid's pixel directions (a celestial grid has no tangent-plane pixel centres for
+    # angular_distance), separated as angular_distance does (Vincenty: no loss at small
+    # angles; latitude is 90 deg minus the zenith angle).
     th, ph = (v.to_value("rad") for v in s["grid"].directions())
-    v = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
-    cos = np.clip(v[:, int(np.argmax(img))] @ v[:, at], -1.0, 1.0)
-    return float(np.degrees(np.arccos(cos))), contrast
+    k = int(np.argmax(img))
+    sep = angular_separation(ph[k], np.pi / 2 - th[k], ph[at], np.pi / 2 - th[at])
+    return float(np.degrees(sep)), contrast
 
 
 def main() -> None:

@@ -28,7 +28,10 @@ crosses the disc's rim (the disc's chord density has a square-root edge), so the
 interpolation error there falls as ``step^1.5``: the table step in ``u`` is chosen from
 ``tolerance`` by the law measured in ``benchmarks/bench_radon.py`` (``docs/response.md``),
 and the number of ``q`` nodes by the Chebyshev error bound of ``exp(-tau f)``,
-``0 <= f <= 1``.
+``0 <= f <= 1``.  The table itself is interpolated, cubic in ``s = h w`` between the kinks of
+``E`` in ``s``, from ``E`` on the offset nodes and far fewer nodes in ``s`` (the grid of ``w``
+is tied to the offset grid so that every ``x_j + L w_k`` is an offset node;
+``docs/physics.md`` §2b).
 """
 
 from __future__ import annotations
@@ -61,13 +64,21 @@ __all__ = ["RadonResponse"]
 #: Interpolation error of the table: ``max abs(dP) ~ ERROR_LAW step^1.5``, ``step`` the table
 #: spacing in ``u`` in detector radii (cubic in ``w``; in ``x`` cubic, or linear at half the
 #: step).
-#: Chosen so that the measured error stays below the tolerance with a margin: at most 0.86
+#: Chosen so that the measured error stays below the tolerance with a margin: at most 0.81
 #: of it on the paper's whole grid and random geometries (docs/response.md).
 ERROR_LAW = 0.15
 #: The default ``tolerance`` of the Radon operators (largest error of a profile value).
 DEFAULT_TOLERANCE = 1e-4
 #: Share of the tolerance given to the ``q`` (optical depth) interpolation.
 RING_SHARE = 0.1
+#: Share of the tolerance given to the interpolation of ``E`` in the shadow's shift ``s``
+#: (the table is built from ``E`` on nodes in ``s``, far coarser than ``h Δw`` when
+#: ``h << L``: :func:`_shift_nodes`; the step follows from ``ERROR_LAW``, which
+#: over-estimates this error 2x or more: ``benchmarks/bench_radon_shift.py``).
+SHIFT_SHARE = 0.05
+#: Version of the table's grids, in a stored response's metadata (2: ``L Δw`` a multiple of
+#: the offset step, so the table is built from ``E`` on a grid of ``s``).
+TABLE_LAYOUT = 2
 #: Most ``q`` nodes (the Chebyshev bound needs more only for absurd fields).
 MAX_RINGS = 10
 #: Detector stage: with ``J`` the rows of a table cubic in the detector offset, use one BLAS
@@ -269,6 +280,32 @@ def _dense(tab, tx, ty, qw, cos_a, sin_a, k0, inv_dw, jx, ax, n_sub, out):
                 out[d, t, n] = acc[d, n]
 
 
+@njit(parallel=True, cache=True, fastmath=_FMA)
+def _table_rows(coarse, j0, ratio, k0, node0, wts, out):
+    """``out[j - j0, k, r]``: table rows ``j0 ...`` from ``coarse[m, i, r] = E(x_i, s_m,
+    tau_r)``: ``sum_t wts[|k - k0|, t] coarse[node0[|k - k0|] + t, i, r]``.
+
+    ``x_j + L w_k = x_i`` exactly, ``i = j + ratio (k - k0) mod J``; for ``w_k < 0`` the mirror
+    ``E(u, s) = E(-u, -s)`` gives ``i = -(j + ratio (k - k0)) mod J`` at ``|s|``.  Clipped to
+    [0, 1], where every profile value lies (so clipping only removes error)."""
+    n_rows, n_w, n_r = out.shape
+    n_x = coarse.shape[1]
+    n_taps = wts.shape[1]
+    for jj in prange(n_rows):
+        j = j0 + jj
+        for k in range(n_w):
+            dk = k - k0
+            i = (j + ratio * dk) % n_x if dk >= 0 else (-(j + ratio * dk)) % n_x
+            a = abs(dk)
+            m = node0[a]
+            for r in range(n_r):
+                acc = 0.0
+                for t in range(n_taps):
+                    acc += wts[a, t] * coarse[m + t, i, r]
+                # A profile value lies in [0, 1]; the cubic may overshoot by its error.
+                out[jj, k, r] = min(max(acc, 0.0), 1.0)
+
+
 # --- setup ----------------------------------------------------------------------------------
 
 
@@ -287,6 +324,45 @@ def _ring_count(tau_lo: float, tau_hi: float, tol: float) -> int:
         if deriv * half**n / (2 ** (n - 1) * math.factorial(n)) <= tol:
             return n
     return MAX_RINGS
+
+
+def _shift_nodes(s: np.ndarray, scale: float, a: float, b: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes in the shadow's shift from which ``E`` is interpolated at shifts ``s >= 0``.
+
+    Returns the nodes, and per shift the first of its nodes and their weights ``(len(s),
+    taps)``.  At fixed offset, ``E`` is ``C^1`` in ``s`` (the ``step^1.5`` law of ``u``, with
+    a smaller constant, measured in docs/response.md) but for kinks at the same ``s`` for
+    every offset, where a piece of the shadow pattern vanishes: ``s = 0`` (``|s|``), and
+    ``n p + a``, ``n p + b``, ``(n + 1) p`` (a slat's full-thickness core, a gap's clear view,
+    ...).  So the nodes are uniform between kinks, at a step set by ``SHIFT_SHARE`` of the
+    tolerance (``scale`` = tolerance x radius^1.5), at least four per segment, and each
+    shift's four (cubic) nodes lie in its own segment.  Where that needs as many nodes as
+    there are shifts (masks thick for their height), the shifts themselves are the nodes
+    (one tap of weight 1: the values exact).
+    """
+    ds = (SHIFT_SHARE * scale / ERROR_LAW) ** (2.0 / 3.0)
+    s_max = float(s.max())
+    p = a + b
+    kinks = {0.0}
+    for n in range(int(s_max // p) + 1):
+        kinks |= {n * p + a, n * p + b, (n + 1) * p}
+    edges = [0.0]
+    for v in sorted(kinks):
+        if 1e-12 * p < v - edges[-1] and v < s_max:
+            edges.append(v)
+    edges.append(max(s_max, edges[-1]))
+    lo, hi = np.array(edges[:-1]), np.array(edges[1:])
+    n_seg = np.maximum(4, np.ceil((hi - lo) / ds).astype(np.int64) + 1)
+    if int(n_seg.sum()) >= s.size:
+        return s.copy(), np.arange(s.size), np.ones((s.size, 1))
+    step = np.where(hi > lo, (hi - lo) / (n_seg - 1), ds)
+    start = np.concatenate([[0], np.cumsum(n_seg)[:-1]])
+    nodes = np.concatenate([lo[g] + step[g] * np.arange(n_seg[g]) for g in range(lo.size)])
+    seg = np.clip(np.searchsorted(hi, s, side="right"), 0, lo.size - 1)
+    pos = (s - lo[seg]) / step[seg]
+    m = np.clip(np.floor(pos).astype(np.int64), 1, n_seg[seg] - 3)
+    return nodes, start[seg] + m - 1, np.stack(_cubic(pos - m), axis=-1)
 
 
 def _lagrange(x: np.ndarray, nodes: np.ndarray) -> np.ndarray:
@@ -545,11 +621,9 @@ class RadonResponse(ResponseOperator):
         tx, ty = tan_t * np.cos(ph), tan_t * np.sin(ph)
         q = np.hypot(1.0, tan_t)
         # Interpolation step in u (cm) from the tolerance (error ~ ERROR_LAW step^1.5).
-        step = ((1.0 - RING_SHARE) * self.tolerance / ERROR_LAW) ** (2.0 / 3.0) * radius
+        share = 1.0 - RING_SHARE - SHIFT_SHARE
+        step = (share * self.tolerance / ERROR_LAW) ** (2.0 / 3.0) * radius
         t_max = float(np.max(np.hypot(tx, ty))) if n_pix else 0.0
-        dw = step / big_l
-        k0 = math.ceil(t_max / dw) + 3
-        n_w = 2 * k0 + 1
         # The detector stage (GEMM_ROWS): cubic in the detector offset at the full step with
         # one BLAS product, or linear at half the step (as accurate, measured) with two dot
         # products per detector and angle.
@@ -557,6 +631,13 @@ class RadonResponse(ResponseOperator):
         gemm = n_x <= GEMM_ROWS * self.n_det
         if not gemm:
             n_x = max(4, math.ceil(2.0 * period / step))
+        # L dw is a whole number of offset steps (at most the step), so every table value's
+        # first argument x_j + L w_k is an offset node: the table is E on the offset grid
+        # interpolated in s = h w alone (_table).
+        ratio = 1 if gemm else 2
+        dw = ratio * period / (n_x * big_l)
+        k0 = math.ceil(t_max / dw) + 3
+        n_w = 2 * k0 + 1
         tau_per_q = mu * h if mu != 0.0 else 0.0
         q_lo, q_hi = (float(q.min()), float(q.max())) if n_pix else (1.0, 1.0)
         if math.isinf(mu):
@@ -571,9 +652,11 @@ class RadonResponse(ResponseOperator):
                      f"a table of {n_x} x {n_w} x {n_q} profile values",
                      hint="raise tolerance, or use a smaller field")
         if given is None:
-            sizes = (h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes)
-            self._check_table_time(*sizes)
-            table = self._table(*sizes)
+            tau = np.full(n_q, math.inf) if math.isinf(mu) else mu * h * q_nodes
+            shifts = _shift_nodes(h * dw * np.arange(k0 + 1), self.tolerance * radius ** 1.5,
+                                  mask.slat_width, mask.slat_gap)
+            self._check_table_time(n_x, shifts[0], tau, mu, t_max)
+            table = self._table(n_x, n_w, k0, ratio, shifts, tau, period, mu)
         else:
             table = np.ascontiguousarray(given, dtype=dt)
             if table.shape != (n_x, n_w * n_q):
@@ -625,58 +708,62 @@ class RadonResponse(ResponseOperator):
             n_sub=tb.n_sub, gemm=gemm, q_nodes=q_nodes,
         )
 
-    def _table(self, h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes):
-        """``Psi[j, k, r] = E(x_j + L w_k, h w_k, mu h q_r)`` flattened to ``(J, K R)``.
+    def _table(self, n_x: int, n_w: int, k0: int, ratio: int,
+               shifts: tuple[np.ndarray, np.ndarray, np.ndarray], tau: np.ndarray,
+               period: float, mu: float) -> np.ndarray:
+        """``Psi[j, k, r] = E(x_j + L w_k, h w_k, tau_r)`` flattened to ``(J, K R)``.
 
-        ``E(-u, -s) = E(u, s)`` (the mask is symmetric about the gap on the axis), and the
-        grids are symmetric (``x_{J-j} = -x_j mod p``, ``w_{K-1-k} = -w_k``), so only rows
-        ``j <= J/2`` are computed and the others are their mirror images.
+        ``E`` is computed on the offset nodes ``x_i`` and the nodes ``s_m >= 0`` in the
+        shadow's shift of :func:`_shift_nodes` (``J x n_s x R`` values; ~``0.15 L / h`` times
+        fewer than the table's distinct values: 17x on the wide field of docs/response.md),
+        and every table value is interpolated from them in ``s`` (:func:`_table_rows`).
         """
-        n_q = q_nodes.size
+        s_nodes, node0, wts = shifts
+        n_q, n_s = tau.size, s_nodes.size
         x = period / n_x * np.arange(n_x)
-        w = (np.arange(n_w) - k0) * dw
-        tau = np.full(n_q, math.inf) if math.isinf(mu) else mu * h * q_nodes
-        table = np.empty((n_x, n_w, n_q), dtype=self.dtype)
-        half = n_x // 2 + 1
+        coarse = np.empty((n_s, n_x, n_q))
         # About CAST_BYTES of values per call: a short call, so Ctrl-C stops the build soon.
-        rows_per_call = max(1, CAST_BYTES // 8 // n_w)
+        cols = max(1, CAST_BYTES // 8 // n_x)
         for r in range(n_q):
-            for j0 in range(0, half, rows_per_call):
-                j1 = min(half, j0 + rows_per_call)
-                table[j0:j1, :, r] = self._values(x[j0:j1], w, tau[r], h, big_l, mu)
-        for j in range(half, n_x):
-            table[j] = table[n_x - j, ::-1]
+            for m0 in range(0, n_s, cols):
+                m1 = min(n_s, m0 + cols)
+                coarse[m0:m1, :, r] = self._values(x, s_nodes[m0:m1], tau[r], mu).T
+        table = np.empty((n_x, n_w, n_q), dtype=self.dtype)
+        rows = max(1, (8 * CAST_BYTES) // (8 * n_w * n_q))
+        buf = np.empty((min(rows, n_x), n_w, n_q))
+        for j0 in range(0, n_x, rows):
+            j1 = min(n_x, j0 + rows)
+            _table_rows(coarse, j0, ratio, k0, node0, wts, buf[: j1 - j0])
+            table[j0:j1] = buf[: j1 - j0]
         return table.reshape(n_x, n_w * n_q)
 
-    def _values(self, x: np.ndarray, w: np.ndarray, tau: float, h: float, big_l: float,
-                mu: float) -> np.ndarray:
-        """``E(x_j + L w_k, h w_k, tau)`` for rows ``x`` and sky coordinates ``w``."""
-        uc = x[:, None] + big_l * w[None, :]
-        zeros_w = np.zeros(w.size)
-        geom = ProjectedGeometry(uc, np.zeros_like(uc), h * w, zeros_w, np.full(w.size, tau),
-                                 zeros_w, zeros_w, mu)
-        out = np.empty((x.size, 1, w.size))
+    def _values(self, u: np.ndarray, s: np.ndarray, tau: float, mu: float) -> np.ndarray:
+        """``E(u_i, s_m, tau)`` for offsets ``u`` (rows) and shifts ``s`` (columns)."""
+        uc = np.repeat(u[:, None], s.size, axis=1)
+        zeros_s = np.zeros(s.size)
+        geom = ProjectedGeometry(uc, np.zeros_like(uc), s, zeros_s, np.full(s.size, tau),
+                                 zeros_s, zeros_s, mu)
+        out = np.empty((u.size, 1, s.size))
         self.model.evaluate(self.instrument, geom, np.ones(1), np.zeros(1), out)
         return out[:, 0, :]
 
-    def _check_table_time(self, h, big_l, mu, period, n_x, n_w, k0, dw, q_nodes) -> None:
+    def _check_table_time(self, n_x: int, s_nodes: np.ndarray, tau: np.ndarray,
+                          mu: float, t_max: float) -> None:
         """Refuse a table that would take longer than the time budget, before it is made.
 
-        A value's cost grows with the shift ``h |w|`` of the slat shadow (8e6/s on the axis,
-        1.5e6/s past a slat width, measured), so the rate is measured here: one row at up to
-        4000 of the table's ``w`` nodes, evenly spread (:func:`rotmod.limits.measure_rate`: a
+        A value's cost grows with the shift ``s`` of the slat shadow (8e6/s on the axis,
+        1.5e6/s past a slat width, measured), so the rate is measured here: one offset at up
+        to 4000 of the nodes in ``s``, evenly spread (:func:`rotmod.limits.measure_rate`: a
         few ms), at the first optical-depth node (the cost hardly depends on it).
         """
-        w = (np.arange(n_w) - k0) * dw
-        sample = w[:: max(1, n_w // 4000)]
-        tau = math.inf if math.isinf(mu) else mu * h * float(q_nodes[0])
-        per_s = measure_rate(lambda: self._values(np.zeros(1), sample, tau, h, big_l, mu),
+        sample = s_nodes[:: max(1, s_nodes.size // 4000)]
+        per_s = measure_rate(lambda: self._values(np.zeros(1), sample, float(tau[0]), mu),
                              sample.size)
-        t_max = float(np.max(np.abs(w)))
-        check_time(float(n_x // 2 + 1) * n_w * q_nodes.size, per_s,
-                   f"a Radon table of {n_x} x {n_w} x {q_nodes.size} profile values (tolerance "
-                   f"{self.tolerance:g}, pixels up to {np.degrees(np.arctan(t_max)):.4g} deg "
-                   "from the axis)", unit="profile values",
+        check_time(float(n_x) * s_nodes.size * tau.size, per_s,
+                   f"a Radon table from {n_x} x {s_nodes.size} x {tau.size} profile values "
+                   f"(tolerance {self.tolerance:g}, pixels up to "
+                   f"{np.degrees(np.arctan(t_max)):.4g} deg from the axis)",
+                   unit="profile values",
                    hint="raise tolerance, or keep the field further from the horizon")
 
     # -- products --------------------------------------------------------------------------
@@ -776,7 +863,8 @@ class RadonResponse(ResponseOperator):
         meta = super().metadata()
         f = self._factors
         meta["operator"] = {"kind": "radon", "tolerance": self.tolerance,
-                            "table": [int(f.table.shape[0]), f.n_w, f.n_q]}
+                            "table": [int(f.table.shape[0]), f.n_w, f.n_q],
+                            "layout": TABLE_LAYOUT}
         return meta
 
     def __repr__(self) -> str:
@@ -807,6 +895,14 @@ class RadonStore(StoreKind):
 
     @classmethod
     def open(cls, group: Any, path: Path, meta: dict[str, Any]) -> ResponseOperator:
+        layout = (meta.get("operator") or {}).get("layout", 1)
+        if layout != TABLE_LAYOUT:
+            # An earlier layout's grids of w differ from today's: its table would be read
+            # on the wrong nodes (refused, not reinterpolated).
+            raise RotmodError(f"response store {str(path)!r}: its Radon table has the grid "
+                              f"layout {layout} of an earlier rotmod, this one reads layout "
+                              f"{TABLE_LAYOUT}; rebuild it with rotmod response --operator "
+                              "radon")
         table = fmt.read_table(group, path)
         r = restore_fields(meta)
         try:

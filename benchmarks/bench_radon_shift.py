@@ -79,7 +79,7 @@ def main() -> None:
         u = m.period * np.arange(97) / 97
         s = np.linspace(0.0, s_max, 3001)[1:]
         ref = profile(inst, u, s, tau, mu)
-        for rel in (0.02, 0.01, 0.005, 0.002):
+        for rel in (0.02, 0.01, 0.005, 0.002, 0.001):
             # The tolerance whose SHIFT_SHARE sets this node step.
             tol = ERROR_LAW * rel**1.5 / SHIFT_SHARE
             nodes, node0, wts = _shift_nodes(s, tol * radius**1.5, m.slat_width, m.slat_gap)

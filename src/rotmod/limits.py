@@ -66,6 +66,9 @@ RATES: dict[str, float] = {
     # attitude pieces (AttitudeTable.intervals: one slerp and one SkyCoord each): 600/s
     # at load 5, 510/s at load 9.
     "attitude_pieces": 600.0,
+    # Radon table values interpolated from the profile values (radon._table_rows, 4 taps):
+    # 5.2e8/s on two idle threads (the wide field's 2.4e8 in 0.46 s); a third of that here.
+    "radon_table_values": 1.7e8,
 }
 
 

@@ -283,24 +283,43 @@ def test_a_store_of_an_earlier_table_layout_is_refused(tmp_path, monkeypatch) ->
 
     inst, grid, tb, energy = CASES["prototype-662"]
     radon = RadonResponse(inst, grid, tb, energy)
-    # Written as an earlier rotmod would have (its w grid was not tied to the offset grid).
-    monkeypatch.setattr(radon_module, "TABLE_LAYOUT", 1)
+    # Written as an earlier rotmod would have (its w grid was not tied to the offset grid):
+    # with no layout in its metadata, as those were, or with an old number.
+    meta = radon.metadata
+
+    def without_layout() -> dict:
+        out = meta()
+        del out["operator"]["layout"]
+        return out
+
+    monkeypatch.setattr(radon_module, "TABLE_LAYOUT", 1)  # the rotmod that reads them back
+    save_response(tmp_path / "one.zarr", radon)
+    monkeypatch.setattr(radon, "metadata", without_layout)
     save_response(tmp_path / "old.zarr", radon)
     monkeypatch.undo()
-    with pytest.raises(RotmodError, match=r"old\.zarr.*layout 1.*rebuild"):
-        open_response(tmp_path / "old.zarr")
+    for name in ("old", "one"):
+        with pytest.raises(RotmodError, match=rf"{name}\.zarr.*layout 1.*rebuild"):
+            open_response(tmp_path / f"{name}.zarr")
 
 
-@pytest.mark.parametrize(("name", "interpolated"), [("thick-wide", True),
-                                                    ("small-detector-opaque", True),
-                                                    ("steep", False)])
-def test_table_values_are_the_exact_profile_at_their_nodes(name, interpolated) -> None:
+@pytest.mark.parametrize(("name", "interpolated", "gemm"), [
+    ("thick-wide", True, False), ("small-detector-opaque", True, False),
+    ("prototype-662", True, True), ("steep", False, False)])
+def test_table_values_are_the_exact_profile_at_their_nodes(name, interpolated, gemm,
+                                                            monkeypatch) -> None:
     from rotmod.profiles.exact import exact_point
+    from rotmod.response import radon as radon_module
     from rotmod.response.radon import SHIFT_SHARE
 
-    inst, energy = CASES[name][0], CASES[name][3]
-    radon = _radon(name)
+    inst, grid, tb, energy = CASES[name]
+    if gemm:
+        # The BLAS table (cubic in the offset at the full step: L dw is one offset step).
+        monkeypatch.setattr(radon_module, "GEMM_ROWS", 10**6)
+        radon = RadonResponse(inst, grid, tb, energy, dtype=np.float64)
+    else:
+        radon = _radon(name)  # the rows table (L dw is two offset steps)
     f, m = radon._factors, inst.mask
+    assert f.gemm == gemm
     n_x = f.table.shape[0]
     dw = 1.0 / f.inv_dw
     mu = m.linear_attenuation(energy)

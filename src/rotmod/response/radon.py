@@ -50,7 +50,7 @@ from numba.extending import overload
 from rotmod._validate import as_int, as_scalar
 from rotmod.errors import ModelValidityError, ParameterError, RotmodError
 from rotmod.io import response_store as fmt
-from rotmod.limits import check_memory, check_time, measure_rate
+from rotmod.limits import RATES, check_memory, check_time, measure_rate
 from rotmod.profiles.base import CAST_BYTES, ProjectedGeometry
 from rotmod.response._plan import distinct_bins, fold_half_turn, repeat_half_turn
 from rotmod.response.materialised import MaterialisedResponse
@@ -655,7 +655,7 @@ class RadonResponse(ResponseOperator):
             tau = np.full(n_q, math.inf) if math.isinf(mu) else mu * h * q_nodes
             shifts = _shift_nodes(h * dw * np.arange(k0 + 1), self.tolerance * radius ** 1.5,
                                   mask.slat_width, mask.slat_gap)
-            self._check_table_time(n_x, shifts[0], tau, mu, t_max)
+            self._check_table_time(n_x, n_w, shifts[0], tau, mu, t_max)
             table = self._table(n_x, n_w, k0, ratio, shifts, tau, period, mu)
         else:
             table = np.ascontiguousarray(given, dtype=dt)
@@ -729,6 +729,7 @@ class RadonResponse(ResponseOperator):
                 m1 = min(n_s, m0 + cols)
                 coarse[m0:m1, :, r] = self._values(x, s_nodes[m0:m1], tau[r], mu).T
         table = np.empty((n_x, n_w, n_q), dtype=self.dtype)
+        # Rows through a float64 buffer of 8 CAST_BYTES (one kernel type whatever the dtype).
         rows = max(1, (8 * CAST_BYTES) // (8 * n_w * n_q))
         buf = np.empty((min(rows, n_x), n_w, n_q))
         for j0 in range(0, n_x, rows):
@@ -747,23 +748,26 @@ class RadonResponse(ResponseOperator):
         self.model.evaluate(self.instrument, geom, np.ones(1), np.zeros(1), out)
         return out[:, 0, :]
 
-    def _check_table_time(self, n_x: int, s_nodes: np.ndarray, tau: np.ndarray,
+    def _check_table_time(self, n_x: int, n_w: int, s_nodes: np.ndarray, tau: np.ndarray,
                           mu: float, t_max: float) -> None:
         """Refuse a table that would take longer than the time budget, before it is made.
 
         A value's cost grows with the shift ``s`` of the slat shadow (8e6/s on the axis,
         1.5e6/s past a slat width, measured), so the rate is measured here: one offset at up
         to 4000 of the nodes in ``s``, evenly spread (:func:`rotmod.limits.measure_rate`: a
-        few ms), at the first optical-depth node (the cost hardly depends on it).
+        few ms), at the first optical-depth node (the cost hardly depends on it).  The
+        interpolation to the table's values is added at ``RATES["radon_table_values"]``.
         """
         sample = s_nodes[:: max(1, s_nodes.size // 4000)]
         per_s = measure_rate(lambda: self._values(np.zeros(1), sample, float(tau[0]), mu),
                              sample.size)
-        check_time(float(n_x) * s_nodes.size * tau.size, per_s,
-                   f"a Radon table from {n_x} x {s_nodes.size} x {tau.size} profile values "
-                   f"(tolerance {self.tolerance:g}, pixels up to "
-                   f"{np.degrees(np.arctan(t_max)):.4g} deg from the axis)",
-                   unit="profile values",
+        n_values = float(n_x) * s_nodes.size * tau.size
+        seconds = n_values / per_s + float(n_x) * n_w * tau.size / RATES["radon_table_values"]
+        check_time(n_values, n_values / seconds,
+                   f"a Radon table from {n_x} x {s_nodes.size} x {tau.size} profile values, "
+                   f"interpolated to {n_x} x {n_w} x {tau.size} (tolerance "
+                   f"{self.tolerance:g}, pixels up to {np.degrees(np.arctan(t_max)):.4g} deg "
+                   "from the axis)", unit="profile values",
                    hint="raise tolerance, or keep the field further from the horizon")
 
     # -- products --------------------------------------------------------------------------

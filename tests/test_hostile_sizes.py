@@ -203,9 +203,9 @@ def test_a_radon_table_near_the_horizon_is_estimated_before_it_is_made(monkeypat
     inst = Instrument.paper()
     RadonResponse(inst, SkyGrid((3, 3), 1.0), 12, 122)  # compiles the kernels first
     # `rotmod response --operator radon --fov 179`: pixels 66 deg from the axis make the
-    # table from 1169 x 2124 x 10 profile values, estimated at ~14 s here (1125 x 31027 x 10,
+    # table from 1169 x 2124 x 10 profile values, estimated at ~16 s here (1125 x 31027 x 10,
     # ~150-250 s measured, before the table was built from nodes in the shadow's shift).
-    # A 1 s budget refuses it whatever the machine's speed within a factor of 14.
+    # A 1 s budget refuses it whatever the machine's speed within a factor of 16.
     monkeypatch.setenv("ROTMOD_TIME_BUDGET", "1s")
     msg = _refused(lambda: RadonResponse(inst, SkyGrid.square(179, 2.0), 64, 122),
                    TimeBudgetError, r"a Radon table from 1169 x \d+ x \d+ profile values")

@@ -27,21 +27,10 @@ import numpy as np
 from rotmod import DetectorArray, Instrument, Mask
 from rotmod.io import load_instrument
 from rotmod.profiles import get_model
-from rotmod.profiles.base import ProjectedGeometry
-from rotmod.response.radon import ERROR_LAW, SHIFT_SHARE, _shift_nodes
+from rotmod.response.radon import ERROR_LAW, SHIFT_SHARE, _one_detector_values, _shift_nodes
 
 OUT = Path(__file__).parent / "results" / "bench_radon_shift.txt"
 MODEL = get_model("exact")
-
-
-def profile(inst: Instrument, u: np.ndarray, s: np.ndarray, tau: float, mu: float) -> np.ndarray:
-    """``E(u_i, s_m, tau)`` by the exact model, ``(u.size, s.size)``."""
-    uc = np.repeat(u[:, None], s.size, axis=1)
-    z = np.zeros(s.size)
-    geom = ProjectedGeometry(uc, np.zeros_like(uc), s, z, np.full(s.size, tau), z, z, mu)
-    out = np.empty((u.size, 1, s.size))
-    MODEL.evaluate(inst, geom, np.ones(1), np.zeros(1), out)
-    return out[:, 0, :]
 
 
 def cases() -> dict[str, tuple[Instrument, float | None, float]]:
@@ -78,14 +67,14 @@ def main() -> None:
         tau = math.inf if math.isinf(mu) else 1.2 * mu * m.thickness  # 34 deg off axis
         u = m.period * np.arange(97) / 97
         s = np.linspace(0.0, s_max, 3001)[1:]
-        ref = profile(inst, u, s, tau, mu)
+        ref = _one_detector_values(MODEL, inst, u, s, tau, mu)
         for rel in (0.02, 0.01, 0.005, 0.002, 0.001):
             # The tolerance whose SHIFT_SHARE sets this node step.
             tol = ERROR_LAW * rel**1.5 / SHIFT_SHARE
             nodes, node0, wts = _shift_nodes(s, tol * radius**1.5, m.slat_width, m.slat_gap)
             if wts.shape[1] == 1:
                 continue  # as many nodes as shifts: the values themselves
-            vals = profile(inst, u, nodes, tau, mu)
+            vals = _one_detector_values(MODEL, inst, u, nodes, tau, mu)
             est = sum(wts[:, t] * vals[:, node0 + t] for t in range(wts.shape[1]))
             err = float(np.abs(est - ref).max())
             law = ERROR_LAW * rel**1.5

@@ -365,6 +365,19 @@ def _shift_nodes(s: np.ndarray, scale: float, a: float, b: float
     return nodes, start[seg] + m - 1, np.stack(_cubic(pos - m), axis=-1)
 
 
+def _one_detector_values(model: Any, instrument: Any, u: np.ndarray, s: np.ndarray,
+                         tau: float, mu: float) -> np.ndarray:
+    """``E(u_i, s_m, tau)`` of ``model`` for offsets ``u`` (rows) and shadow shifts ``s``
+    (columns): the one-detector profile the table holds (``docs/physics.md`` §2b)."""
+    uc = np.repeat(u[:, None], s.size, axis=1)
+    zeros_s = np.zeros(s.size)
+    geom = ProjectedGeometry(uc, np.zeros_like(uc), s, zeros_s, np.full(s.size, tau),
+                             zeros_s, zeros_s, mu)
+    out = np.empty((u.size, 1, s.size))
+    model.evaluate(instrument, geom, np.ones(1), np.zeros(1), out)
+    return out[:, 0, :]
+
+
 def _lagrange(x: np.ndarray, nodes: np.ndarray) -> np.ndarray:
     """Lagrange basis weights ``(x.size, nodes.size)`` of ``nodes`` at ``x``."""
     w = np.ones((x.size, nodes.size))
@@ -727,7 +740,8 @@ class RadonResponse(ResponseOperator):
         for r in range(n_q):
             for m0 in range(0, n_s, cols):
                 m1 = min(n_s, m0 + cols)
-                coarse[m0:m1, :, r] = self._values(x, s_nodes[m0:m1], tau[r], mu).T
+                coarse[m0:m1, :, r] = _one_detector_values(
+                    self.model, self.instrument, x, s_nodes[m0:m1], tau[r], mu).T
         table = np.empty((n_x, n_w, n_q), dtype=self.dtype)
         # Rows through a float64 buffer of 8 CAST_BYTES (one kernel type whatever the dtype).
         rows = max(1, (8 * CAST_BYTES) // (8 * n_w * n_q))
@@ -737,16 +751,6 @@ class RadonResponse(ResponseOperator):
             _table_rows(coarse, j0, ratio, k0, node0, wts, buf[: j1 - j0])
             table[j0:j1] = buf[: j1 - j0]
         return table.reshape(n_x, n_w * n_q)
-
-    def _values(self, u: np.ndarray, s: np.ndarray, tau: float, mu: float) -> np.ndarray:
-        """``E(u_i, s_m, tau)`` for offsets ``u`` (rows) and shifts ``s`` (columns)."""
-        uc = np.repeat(u[:, None], s.size, axis=1)
-        zeros_s = np.zeros(s.size)
-        geom = ProjectedGeometry(uc, np.zeros_like(uc), s, zeros_s, np.full(s.size, tau),
-                                 zeros_s, zeros_s, mu)
-        out = np.empty((u.size, 1, s.size))
-        self.model.evaluate(self.instrument, geom, np.ones(1), np.zeros(1), out)
-        return out[:, 0, :]
 
     def _check_table_time(self, n_x: int, n_w: int, s_nodes: np.ndarray, tau: np.ndarray,
                           mu: float, t_max: float) -> None:
@@ -759,8 +763,8 @@ class RadonResponse(ResponseOperator):
         interpolation to the table's values is added at ``RATES["radon_table_values"]``.
         """
         sample = s_nodes[:: max(1, s_nodes.size // 4000)]
-        per_s = measure_rate(lambda: self._values(np.zeros(1), sample, float(tau[0]), mu),
-                             sample.size)
+        per_s = measure_rate(lambda: _one_detector_values(
+            self.model, self.instrument, np.zeros(1), sample, float(tau[0]), mu), sample.size)
         n_values = float(n_x) * s_nodes.size * tau.size
         seconds = n_values / per_s + float(n_x) * n_w * tau.size / RATES["radon_table_values"]
         check_time(n_values, n_values / seconds,
